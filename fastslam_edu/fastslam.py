@@ -1,0 +1,481 @@
+"""FastSLAM 1.0 with known correspondences, vectorised over particles.
+
+The filter of Montemerlo et al. (2002), in the order of the MR.CLAM write-up's
+``propagate_all_states``, ``reweight_and_update``, ``resample`` and
+``combine_particles``:
+
+1. **Propagate** every particle's pose by sampling the motion model,
+   :math:`x_t^{[m]} \\sim p(x_t \\mid x_{t-1}^{[m]}, u_t)` (:mod:`fastslam_edu.motion`).
+2. **Update** for each measurement :math:`z = (r, \\phi)` of landmark :math:`k`:
+   a landmark seen for the first time is initialised from the inverse model
+   (:func:`fastslam_edu.ekf.initialise_landmark`); otherwise its 2×2 EKF is
+   updated and the particle's log weight grows by the log-likelihood
+   :math:`\\log \\mathcal N(\\nu; 0, Q)` (:func:`fastslam_edu.ekf.update_landmark`).
+3. **Resample** (:mod:`fastslam_edu.resampling`) when the effective sample size
+   :math:`N_\\text{eff} = 1/\\sum_m (w^{[m]})^2` falls below a fraction of
+   :math:`M` (default 0.5); weights are reset to uniform afterwards.
+4. **Combine**: the weighted mean pose and map, and the highest-weight particle.
+
+State of the filter (:class:`ParticleSet`), for :math:`M` particles and :math:`K` landmarks:
+
+=========  ==============  ==========================================
+poses      (M, 3)          :math:`x^{[m]} = (x, y, \\theta)` [m, m, rad]
+mu         (M, K, 2)       :math:`\\mu_k^{[m]}` [m]
+sigma      (M, K, 2, 2)    :math:`\\Sigma_k^{[m]}` [m²]
+seen       (M, K) bool     landmark k initialised in particle m
+logw       (M,)            :math:`\\log w^{[m]}` (unnormalised)
+=========  ==============  ==========================================
+
+Between two measurement instants the filter propagates through every odometry
+step of the segment at once (:func:`fastslam_edu.motion.move_segment`), which is
+what makes full-rate (~65 Hz) odometry cheap.
+
+What real data needs beyond the textbook (see :mod:`fastslam_edu.noise_estimation`):
+noise densities per √s (independent of the odometry rate), and a gate against
+outlier measurements: a measurement is rejected when, for particles holding at
+least half of the weight, its squared Mahalanobis distance exceeds
+``gate_chi2`` (default: the 99.9 % point of χ² with 2 degrees of freedom).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .angles import wrap_angle
+from .datasets.log import EventStream
+from .ekf import initialise_landmark, innovation_statistics, update_landmark
+from .motion import MotionNoise, move_segment
+from .resampling import get_resampler
+from .weights import effective_sample_size, weights_from_log
+
+MODES = ("slam", "localize", "map")
+
+#: χ²₂ 99.9 % quantile: −2 ln(0.001)
+CHI2_2DOF_999 = float(-2.0 * np.log(1e-3))
+
+#: Longest run of odometry steps propagated at once (bounds memory: M × L × 3 floats).
+MAX_SEGMENT = 512
+
+
+@dataclass(frozen=True)
+class FastSLAMParams:
+    """Settings of the filter.
+
+    Attributes
+    ----------
+    n_particles : int
+        :math:`M`.
+    motion_noise : MotionNoise
+        Per-√s noise densities (rate independent).
+    measurement_cov : ndarray (2, 2)
+        :math:`R = \\mathrm{diag}(\\sigma_r^2, \\sigma_\\phi^2)` [m², rad²].
+    resampler : str
+        ``"systematic"`` (default, lowest variance), ``"stratified"``,
+        ``"residual"`` or ``"multinomial"`` (the roulette wheel).
+    resample_threshold : float
+        Resample when :math:`N_\\text{eff} < \\text{threshold}\\cdot M`; 1.0 resamples at
+        every measurement step (the write-up's behaviour), 0 never.
+    gate_chi2 : float or None
+        Outlier gate on :math:`\\nu^\\top Q^{-1}\\nu`; None disables it.
+    mode : str
+        ``"slam"``, ``"localize"`` (landmarks known, fixed) or ``"map"`` (poses known).
+    """
+
+    n_particles: int = 100
+    motion_noise: MotionNoise = field(
+        default_factory=lambda: MotionNoise(mode="control", sigma_v=0.02, sigma_omega=0.05)
+    )
+    measurement_cov: np.ndarray = field(
+        default_factory=lambda: np.diag([0.08**2, 0.03**2])
+    )
+    resampler: str = "systematic"
+    resample_threshold: float = 0.5
+    gate_chi2: float | None = CHI2_2DOF_999
+    mode: str = "slam"
+
+    def __post_init__(self):
+        if int(self.n_particles) < 1:
+            raise ValueError(f"n_particles must be >= 1, got {self.n_particles!r}")
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        R = np.asarray(self.measurement_cov, dtype=float)
+        if R.shape != (2, 2) or not np.all(np.isfinite(R)) or np.any(np.linalg.eigvalsh(R) <= 0):
+            raise ValueError(f"measurement_cov must be a 2x2 positive definite matrix, got {R!r}")
+        object.__setattr__(self, "measurement_cov", R)
+        if not 0.0 <= float(self.resample_threshold) <= 1.0:
+            raise ValueError(f"resample_threshold must be in [0, 1], got {self.resample_threshold!r}")
+        if self.gate_chi2 is not None and not float(self.gate_chi2) > 0:
+            raise ValueError(f"gate_chi2 must be positive or None, got {self.gate_chi2!r}")
+        get_resampler(self.resampler)  # validates the name
+
+
+@dataclass
+class ParticleSet:
+    """The M particles of FastSLAM 1.0 (arrays, see the module docstring)."""
+
+    poses: np.ndarray
+    mu: np.ndarray
+    sigma: np.ndarray
+    seen: np.ndarray
+    logw: np.ndarray
+
+    @classmethod
+    def initial(cls, n_particles: int, n_landmarks: int, x0) -> "ParticleSet":
+        """All particles at pose ``x0`` (3,), no landmark seen, uniform weights."""
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (3,) or not np.all(np.isfinite(x0)):
+            raise ValueError(f"initial pose must be 3 finite numbers (x, y, theta), got {x0!r}")
+        M, K = int(n_particles), int(n_landmarks)
+        return cls(
+            poses=np.tile(x0, (M, 1)),
+            mu=np.zeros((M, K, 2)),
+            sigma=np.tile(np.eye(2), (M, K, 1, 1)),
+            seen=np.zeros((M, K), dtype=bool),
+            logw=np.zeros(M),
+        )
+
+    def __len__(self) -> int:
+        return self.poses.shape[0]
+
+    @property
+    def weights(self) -> np.ndarray:
+        """Normalised weights :math:`w^{[m]}`, shape (M,)."""
+        return weights_from_log(self.logw)
+
+    def select(self, indices) -> "ParticleSet":
+        """Particles ``indices`` as a new set with **copied** arrays and uniform weights.
+
+        Fancy indexing copies, so two offspring of one parent never share memory:
+        updating a landmark in one cannot change the other (the bug a shallow
+        ``copy.copy`` of a particle object has).
+        """
+        idx = np.asarray(indices)
+        return ParticleSet(
+            poses=self.poses[idx],
+            mu=self.mu[idx],
+            sigma=self.sigma[idx],
+            seen=self.seen[idx],
+            logw=np.zeros(len(idx)),
+        )
+
+
+# ---------------------------------------------------------------- the four steps
+
+
+def propagate(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.Generator):
+    """Step 1: sample the motion model for every particle through L odometry steps.
+
+    Parameters
+    ----------
+    u : ndarray (L, 2)
+        Commands ``(v, ω)`` of the steps.
+    dt : ndarray (L,)
+        Step lengths [s].
+
+    Returns
+    -------
+    path : ndarray (M, L, 3)
+        Every particle's pose after each step; ``particles.poses`` is set to the last.
+    """
+    u = np.atleast_2d(np.asarray(u, dtype=float))
+    dt = np.atleast_1d(np.asarray(dt, dtype=float))
+    eps = rng.standard_normal((len(particles), len(dt), noise.n_draws))
+    path = move_segment(particles.poses, u, dt, noise, eps)
+    particles.poses = path[:, -1].copy()
+    return path
+
+
+def update_with_measurement(
+    particles: ParticleSet, z, k: int, R, *, update_map: bool = True, gate_chi2: float | None = None
+) -> bool:
+    """Step 2 for one measurement ``z = (r, φ)`` of landmark ``k``, all particles at once.
+
+    Particles that have not seen landmark ``k`` initialise it
+    (:math:`\\mu = h^{-1}(x, z)`, :math:`\\Sigma = G R G^\\top`) and keep their weight;
+    the others update its EKF and add :math:`\\log \\mathcal N(\\nu; 0, Q)` to their
+    log weight. With ``update_map=False`` (localisation with a known map) only
+    the weight changes.
+
+    Returns
+    -------
+    bool
+        False when the gate rejected the measurement (nothing changed).
+    """
+    z = np.asarray(z, dtype=float)
+    seen = particles.seen[:, k].copy()  # a copy: initialising below must not change it
+    if gate_chi2 is not None and seen.any():
+        _, d2 = innovation_statistics(
+            particles.mu[seen, k], particles.sigma[seen, k], particles.poses[seen], z, R
+        )
+        w = particles.weights[seen]
+        if np.sum(w * (d2 > gate_chi2)) > 0.5 * np.sum(w):
+            return False
+    if seen.all():
+        mu, sigma, loglik = update_landmark(
+            particles.mu[:, k], particles.sigma[:, k], particles.poses, z, R
+        )
+        particles.logw += loglik
+        if update_map:
+            particles.mu[:, k], particles.sigma[:, k] = mu, sigma
+        return True
+    new = ~seen
+    particles.mu[new, k], particles.sigma[new, k] = initialise_landmark(particles.poses[new], z, R)
+    particles.seen[new, k] = True
+    if seen.any():
+        mu, sigma, loglik = update_landmark(
+            particles.mu[seen, k], particles.sigma[seen, k], particles.poses[seen], z, R
+        )
+        particles.logw[seen] += loglik
+        if update_map:
+            particles.mu[seen, k], particles.sigma[seen, k] = mu, sigma
+    return True
+
+
+def resample_if_needed(
+    particles: ParticleSet, resampler: str, threshold: float, rng: np.random.Generator
+) -> tuple[ParticleSet, float, bool]:
+    """Step 3: resample when :math:`N_\\text{eff} < \\text{threshold}\\cdot M`.
+
+    Returns ``(particles, N_eff before, resampled?)``; after resampling the
+    weights are uniform (the evidence is now in the particle counts — keeping
+    the old weights as well would count it twice).
+    """
+    w = particles.weights
+    n_eff = effective_sample_size(w)
+    if n_eff < threshold * len(particles):
+        return particles.select(get_resampler(resampler)(w, rng)), n_eff, True
+    return particles, n_eff, False
+
+
+def combined_pose(poses, w) -> np.ndarray:
+    """Weighted mean pose: :math:`\\bar x = \\sum_m w^{[m]} x^{[m]}`, with the circular mean for θ.
+
+    ``poses`` (M, ..., 3), ``w`` (M,) normalised; returns (..., 3).
+    """
+    poses = np.asarray(poses, dtype=float)
+    xy = np.tensordot(w, poses[..., :2], axes=(0, 0))
+    s = np.tensordot(w, np.sin(poses[..., 2]), axes=(0, 0))
+    c = np.tensordot(w, np.cos(poses[..., 2]), axes=(0, 0))
+    return np.concatenate([xy, np.arctan2(s, c)[..., None]], axis=-1)
+
+
+def combined_map(particles: ParticleSet):
+    """Step 4 for the map: weighted mean landmarks and their mixture covariance.
+
+    :math:`\\bar\\mu_k = \\sum_m w^{[m]} \\mu_k^{[m]}` over the particles that have seen
+    ``k`` (weights renormalised among them), and
+    :math:`\\bar\\Sigma_k = \\sum_m w^{[m]} (\\Sigma_k^{[m]} + (\\mu_k^{[m]}-\\bar\\mu_k)(\\mu_k^{[m]}-\\bar\\mu_k)^\\top)`,
+    the covariance of the Gaussian mixture (the write-up's "weighted sum of squared
+    covariances" is not a covariance: see the chapter on putting it together).
+
+    Returns ``mu (K, 2)``, ``sigma (K, 2, 2)``, ``observed (K,)``; NaN for unseen landmarks.
+    """
+    w = particles.weights[:, None] * particles.seen  # (M, K)
+    tot = w.sum(axis=0)
+    observed = tot > 0
+    wn = np.divide(w, tot, out=np.zeros_like(w), where=observed)
+    mu = np.einsum("mk,mkd->kd", wn, particles.mu)
+    d = particles.mu - mu[None]
+    sigma = np.einsum("mk,mkij->kij", wn, particles.sigma + d[..., :, None] * d[..., None, :])
+    mu[~observed] = np.nan
+    sigma[~observed] = np.nan
+    return mu, sigma, observed
+
+
+# ---------------------------------------------------------------- the whole run
+
+
+@dataclass
+class FastSLAMResult:
+    """What a run produces.
+
+    Attributes
+    ----------
+    t : (N,) step times [s]
+    pose_mean : (N, 3) weighted-mean pose after each step
+    pose_best : (N, 3) pose of the highest-weight particle after each step
+    landmarks_mean, landmarks_cov, observed : the combined map at the end ((K,2), (K,2,2), (K,))
+    landmarks_best : (K, 2) map of the highest-weight particle at the end
+    ess_t, ess : times and :math:`N_\\text{eff}` at every step that had measurements
+    n_resamples, measurements_used, measurements_rejected : counts
+    filter_seconds : wall time of the filter loop
+    particles : the final ParticleSet
+    """
+
+    t: np.ndarray
+    pose_mean: np.ndarray
+    pose_best: np.ndarray
+    landmarks_mean: np.ndarray
+    landmarks_cov: np.ndarray
+    observed: np.ndarray
+    landmarks_best: np.ndarray
+    ess_t: np.ndarray
+    ess: np.ndarray
+    n_resamples: int
+    measurements_used: int
+    measurements_rejected: int
+    filter_seconds: float
+    particles: ParticleSet
+    params: FastSLAMParams
+    landmark_subjects: np.ndarray
+
+
+def _segments(stream: EventStream, cut_times=()):
+    """Split steps into runs ending at a measurement step (or MAX_SEGMENT, or a cut time)."""
+    n_meas = np.diff(stream.offsets)
+    ends = set(np.flatnonzero(n_meas > 0).tolist())
+    for tc in cut_times:
+        k = int(np.searchsorted(stream.t, tc, side="left"))
+        if k < len(stream):
+            ends.add(k)  # the step at or just after tc ends a segment
+    ends.add(len(stream) - 1)
+    start = 0
+    for end in sorted(ends):
+        while end - start + 1 > MAX_SEGMENT:
+            yield start, start + MAX_SEGMENT - 1
+            start += MAX_SEGMENT
+        if end >= start:
+            yield start, end
+        start = end + 1
+
+
+def run_fastslam(
+    stream: EventStream,
+    params: FastSLAMParams = FastSLAMParams(),
+    rng: np.random.Generator | int | None = 0,
+    *,
+    x0=None,
+    landmarks=None,
+    groundtruth_poses=None,
+    kidnap: tuple[float, tuple[float, float, float]] | None = None,
+    progress: bool = False,
+) -> FastSLAMResult:
+    """Run FastSLAM 1.0 over an event stream.
+
+    Parameters
+    ----------
+    stream : EventStream
+        From :func:`fastslam_edu.datasets.events.event_stream` (full rate or 1 Hz).
+    params : FastSLAMParams
+    rng : numpy.random.Generator or int seed
+    x0 : (3,) initial pose; default ``stream.x0`` (groundtruth at the first step).
+    landmarks : (K, 2) known landmark positions, needed for ``mode="localize"``.
+    groundtruth_poses : callable ``t -> (n, 3)`` poses, needed for ``mode="map"``.
+    kidnap : ``(t_k, (x, y, θ))`` — at the first step at or after ``t_k`` every
+        particle is moved to that pose (the write-up's kidnapped-robot test).
+    progress : show a tqdm progress bar.
+    """
+    rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
+    x0 = stream.x0 if x0 is None else np.asarray(x0, dtype=float)
+    if x0 is None:
+        raise ValueError("no initial pose: the stream has no groundtruth; pass x0=(x, y, theta)")
+    M, K, N = params.n_particles, stream.n_landmarks, len(stream)
+    if N == 0:
+        raise ValueError("the event stream is empty")
+    R = params.measurement_cov
+    particles = ParticleSet.initial(M, K, x0)
+    update_map = params.mode != "localize"
+    if params.mode == "localize":
+        if landmarks is None:
+            raise ValueError('mode="localize" needs the known landmark positions (landmarks=...)')
+        landmarks = np.asarray(landmarks, dtype=float)
+        if landmarks.shape != (K, 2):
+            raise ValueError(f"landmarks must have shape ({K}, 2), got {landmarks.shape}")
+        particles.mu[:] = landmarks
+        particles.sigma[:] = np.eye(2) * 1e-6
+        particles.seen[:] = True
+    if params.mode == "map" and groundtruth_poses is None:
+        raise ValueError('mode="map" needs the groundtruth poses (groundtruth_poses=callable t -> (n, 3))')
+
+    pose_mean = np.empty((N, 3))
+    pose_best = np.empty((N, 3))
+    ess_t, ess = [], []
+    n_resamples = used = rejected = 0
+    kidnap_step = None
+    if kidnap is not None:
+        kidnap_step = int(np.searchsorted(stream.t, kidnap[0], side="left"))
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=N, unit="step", desc=f"FastSLAM M={M}", mininterval=0.5)
+    t_start = time.perf_counter()
+    for s, e in _segments(stream, () if kidnap is None else (kidnap[0],)):
+        w = particles.weights
+        if params.mode == "map":
+            path = np.broadcast_to(groundtruth_poses(stream.t[s : e + 1]), (M, e - s + 1, 3))
+            particles.poses = np.array(path[:, -1])
+        else:
+            path = propagate(particles, stream.u[s : e + 1], stream.dt[s : e + 1], params.motion_noise, rng)
+        pose_mean[s : e + 1] = combined_pose(path, w)
+        pose_best[s : e + 1] = path[int(np.argmax(w))]
+        if kidnap_step is not None and s <= kidnap_step <= e:
+            particles.poses[:] = np.asarray(kidnap[1], dtype=float)
+        z, lm = stream.measurements_at(e)
+        if len(z):
+            for zi, ki in zip(z, lm):
+                ok = update_with_measurement(
+                    particles, zi, int(ki), R, update_map=update_map, gate_chi2=params.gate_chi2
+                )
+                used += ok
+                rejected += not ok
+            particles, n_eff, did = resample_if_needed(
+                particles, params.resampler, params.resample_threshold, rng
+            )
+            n_resamples += did
+            ess_t.append(stream.t[e])
+            ess.append(n_eff)
+            w = particles.weights
+            pose_mean[e] = combined_pose(particles.poses, w)
+            pose_best[e] = particles.poses[int(np.argmax(w))]
+        if bar is not None:
+            bar.update(e - s + 1)
+    filter_seconds = time.perf_counter() - t_start
+    if bar is not None:
+        bar.close()
+
+    mu, sigma, observed = combined_map(particles)
+    best = int(np.argmax(particles.logw))
+    lm_best = np.where(particles.seen[best][:, None], particles.mu[best], np.nan)
+    return FastSLAMResult(
+        t=np.asarray(stream.t, dtype=float),
+        pose_mean=pose_mean,
+        pose_best=pose_best,
+        landmarks_mean=mu,
+        landmarks_cov=sigma,
+        observed=observed,
+        landmarks_best=lm_best,
+        ess_t=np.asarray(ess_t),
+        ess=np.asarray(ess),
+        n_resamples=n_resamples,
+        measurements_used=int(used),
+        measurements_rejected=int(rejected),
+        filter_seconds=filter_seconds,
+        particles=particles,
+        params=params,
+        landmark_subjects=np.asarray(stream.landmark_subjects),
+    )
+
+
+def with_params(params: FastSLAMParams, **changes) -> FastSLAMParams:
+    """A copy of ``params`` with some fields changed (validated again)."""
+    return replace(params, **changes)
+
+
+__all__ = [
+    "FastSLAMParams",
+    "ParticleSet",
+    "FastSLAMResult",
+    "propagate",
+    "update_with_measurement",
+    "resample_if_needed",
+    "combined_pose",
+    "combined_map",
+    "run_fastslam",
+    "with_params",
+    "wrap_angle",
+]

@@ -1,0 +1,131 @@
+"""FastSLAM 1.0, one particle at a time: the textbook form, for teaching and testing.
+
+This is the algorithm ``FastSLAM_1`` of the FastSLAM notes (Montemerlo et al. 2002;
+Thrun, Burgard, Fox, *Probabilistic Robotics*, table 13.1) written with plain
+Python loops over particles and landmarks, one :class:`Particle` object each::
+
+    for each particle m:
+        x^[m] ~ p(x_t | x_{t-1}^[m], u_t)                    # propagate
+        for each measurement z of landmark j:
+            if j never seen:  μ_j = h⁻¹(x, z),  Σ_j = G R Gᵀ   # initialise
+            else:             EKF update of (μ_j, Σ_j), w *= N(ν; 0, Q)
+    resample if N_eff < threshold · M
+
+It consumes the random numbers in the same order as the vectorised engine
+(:mod:`fastslam_edu.fastslam`), so both give the same result for the same
+seed — the test that the fast code computes what the textbook says.
+It is ~100× slower; use it to read, not to run long logs.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .datasets.log import EventStream
+from .ekf import initialise_landmark, innovation_statistics, update_landmark_one
+from .fastslam import FastSLAMParams, _segments
+from .motion import move
+from .resampling import get_resampler
+from .weights import effective_sample_size, weights_from_log
+
+
+@dataclass
+class Particle:
+    """One FastSLAM particle: a pose, a log weight and one EKF per landmark seen."""
+
+    pose: np.ndarray
+    logw: float = 0.0
+    landmarks: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    def copy(self) -> "Particle":
+        """A deep copy: offspring of one parent must not share landmark arrays."""
+        return copy.deepcopy(self)
+
+
+def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True) -> None:
+    """Lines 6–18 of FastSLAM_1 for one particle and one measurement."""
+    if j not in p.landmarks:
+        mu, sigma = initialise_landmark(p.pose, z, R)
+        p.landmarks[j] = (mu, sigma)
+        return
+    mu, sigma = p.landmarks[j]
+    mu_new, sigma_new, loglik = update_landmark_one(mu, sigma, p.pose, z, R)
+    p.logw += loglik
+    if update_map:
+        p.landmarks[j] = (mu_new, sigma_new)
+
+
+def gate_rejects(particles: list[Particle], z, j: int, R, gate_chi2) -> bool:
+    """True if particles holding more than half the weight see ``z`` as an outlier."""
+    if gate_chi2 is None:
+        return False
+    w = weights_from_log(np.array([p.logw for p in particles]))
+    outlier_weight = seen_weight = 0.0
+    for p, wm in zip(particles, w):
+        if j in p.landmarks:
+            mu, sigma = p.landmarks[j]
+            _, d2 = innovation_statistics(mu, sigma, p.pose, z, R)
+            seen_weight += wm
+            outlier_weight += wm * float(d2 > gate_chi2)
+    return seen_weight > 0 and outlier_weight > 0.5 * seen_weight
+
+
+def run_fastslam_loop(
+    stream: EventStream,
+    params: FastSLAMParams = FastSLAMParams(),
+    rng: np.random.Generator | int | None = 0,
+    *,
+    x0=None,
+    landmarks=None,
+) -> tuple[list[Particle], np.ndarray]:
+    """Run the textbook filter; returns the final particles and the weighted-mean path (N, 3).
+
+    Supports modes ``"slam"`` and ``"localize"`` (the engine's other options are
+    bookkeeping around the same four steps).
+    """
+    if params.mode not in ("slam", "localize"):
+        raise ValueError('the loop reference runs mode "slam" or "localize"')
+    rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
+    x0 = np.asarray(stream.x0 if x0 is None else x0, dtype=float)
+    R = params.measurement_cov
+    M = params.n_particles
+    particles = [Particle(pose=x0.copy()) for _ in range(M)]
+    if params.mode == "localize":
+        for p in particles:
+            p.landmarks = {k: (np.array(m, dtype=float), np.eye(2) * 1e-6) for k, m in enumerate(landmarks)}
+    path = np.empty((len(stream), 3))
+    for s, e in _segments(stream):
+        eps = rng.standard_normal((M, e - s + 1, params.motion_noise.n_draws))
+        w = weights_from_log(np.array([p.logw for p in particles]))
+        for i, k in enumerate(range(s, e + 1)):
+            for m, p in enumerate(particles):
+                p.pose = move(p.pose, stream.u[k], stream.dt[k], params.motion_noise, eps[m, i])
+            path[k] = _weighted_mean_pose(particles, w)
+        z, lm = stream.measurements_at(e)
+        if len(z) == 0:
+            continue
+        for zi, j in zip(z, lm):
+            if gate_rejects(particles, zi, int(j), R, params.gate_chi2):
+                continue
+            for p in particles:
+                update_particle(p, zi, int(j), R, update_map=params.mode != "localize")
+        w = weights_from_log(np.array([p.logw for p in particles]))
+        if effective_sample_size(w) < params.resample_threshold * M:
+            idx = get_resampler(params.resampler)(w, rng)
+            particles = [particles[i].copy() for i in idx]
+            for p in particles:
+                p.logw = 0.0
+            w = np.full(M, 1.0 / M)
+        path[e] = _weighted_mean_pose(particles, w)
+    return particles, path
+
+
+def _weighted_mean_pose(particles: list[Particle], w) -> np.ndarray:
+    x = sum(wm * p.pose[0] for p, wm in zip(particles, w))
+    y = sum(wm * p.pose[1] for p, wm in zip(particles, w))
+    s = sum(wm * np.sin(p.pose[2]) for p, wm in zip(particles, w))
+    c = sum(wm * np.cos(p.pose[2]) for p, wm in zip(particles, w))
+    return np.array([x, y, np.arctan2(s, c)])

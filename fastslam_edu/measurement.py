@@ -1,0 +1,271 @@
+"""The range–bearing measurement model ``z = h(x, m)``, its inverse and Jacobians.
+
+A robot at pose ``x = (x, y, θ)`` [m, m, rad] sees a landmark at ``m = (m_x, m_y)``
+[m] at range ``r`` [m] and bearing ``φ`` [rad], measured in the robot frame
+(``φ = 0`` straight ahead, positive to the left)::
+
+    δx = m_x - x,   δy = m_y - y
+    r  = √(δx² + δy²)
+    φ  = wrap(atan2(δy, δx) - θ)                      z = h(x, m)
+
+and back, from a measurement to the landmark it implies::
+
+    m_x = x + r cos(φ + θ)
+    m_y = y + r sin(φ + θ)                              m = h⁻¹(x, z)
+
+FastSLAM 1.0 keeps one 2×2 EKF per landmark, so it needs the Jacobian of ``h``
+with respect to the *landmark* (:func:`jacobian_landmark`, the ``H`` of the
+landmark update) and the Jacobian of ``h⁻¹`` with respect to the *measurement*
+(:func:`jacobian_inverse`, used to initialise a new landmark's covariance).
+:func:`jacobian_pose` is for teaching and for FastSLAM 2.0.
+
+Every function is vectorised: ``x`` has shape ``(..., 3)``, ``m`` and ``z`` have
+shape ``(..., 2)`` and the leading dimensions broadcast against each other
+(e.g. poses ``(M, 1, 3)`` of ``M`` particles against landmarks ``(M, K, 2)``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fastslam_edu.angles import wrap_angle
+
+
+def _as_finite(name: str, a, trailing: tuple[int, ...], caller: str) -> np.ndarray:
+    """``a`` as a float array of shape ``(..., *trailing)`` with only finite values.
+
+    Raises a ValueError naming ``caller``, the argument ``name`` and the
+    offending shape or the index of the first NaN/inf.
+    """
+    a = np.asarray(a, dtype=float)
+    n = len(trailing)
+    if a.ndim < n or a.shape[a.ndim - n :] != trailing:
+        want = "(..., " + ", ".join(str(t) for t in trailing) + ")"
+        raise ValueError(f"{caller}: {name} must have shape {want}, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+        raise ValueError(
+            f"{caller}: {name} contains a non-finite value ({float(a[bad])}) at index {bad}"
+        )
+    return a
+
+
+def _first_where(mask: np.ndarray) -> tuple[int, ...]:
+    """Batch index of the first True entry of ``mask`` (for error messages)."""
+    return tuple(int(i) for i in np.argwhere(mask)[0])
+
+
+def _at(index: tuple[int, ...]) -> str:
+    """Where in the batch an error is, for messages (empty for unbatched input)."""
+    return f" at batch index {index}" if index else ""
+
+
+def _offsets(x: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Landmark position relative to the robot: ``δx = m_x - x``, ``δy = m_y - y``."""
+    return m[..., 0] - x[..., 0], m[..., 1] - x[..., 1]
+
+
+def _nonzero_range(x, m, dx, dy, caller: str) -> np.ndarray:
+    """``r² = δx² + δy²``, refusing a landmark exactly on the robot (r = 0)."""
+    q = dx**2 + dy**2
+    if (q == 0).any():
+        i = _first_where(np.broadcast_to(q == 0, q.shape))
+        xi = np.broadcast_to(x, q.shape + (3,))[i]
+        mi = np.broadcast_to(m, q.shape + (2,))[i]
+        raise ValueError(
+            f"{caller}: landmark m = {tuple(mi.tolist())} lies on the robot position of pose "
+            f"x = {tuple(xi.tolist())} (range r = 0){_at(i)}: the bearing and its "
+            "derivatives are undefined there"
+        )
+    return q
+
+
+def _nonnegative_range(z: np.ndarray, caller: str) -> None:
+    """Refuse negative ranges (often a sign of swapped (r, φ) columns)."""
+    if (z[..., 0] < 0).any():
+        i = _first_where(z[..., 0] < 0)
+        raise ValueError(
+            f"{caller}: negative range r = {float(z[i][0])} m in z{_at(i)}; "
+            "z must be (r, φ) with r ≥ 0"
+        )
+
+
+def range_bearing(x, m) -> np.ndarray:
+    """Predicted measurement ``ẑ = h(x, m)`` of landmark ``m`` from pose ``x``.
+
+    ``r = √(δx² + δy²)``, ``φ = wrap(atan2(δy, δx) − θ)`` with
+    ``δx = m_x − x``, ``δy = m_y − y``.
+
+    Parameters
+    ----------
+    x : array_like, shape (..., 3)
+        Robot pose ``(x, y, θ)`` [m, m, rad].
+    m : array_like, shape (..., 2)
+        Landmark position ``(m_x, m_y)`` [m]. Broadcasts against ``x``.
+
+    Returns
+    -------
+    z : ndarray, shape (..., 2)
+        ``(r, φ)``: range [m] and bearing [rad] in (−π, π].
+    """
+    x = _as_finite("x", x, (3,), "range_bearing")
+    m = _as_finite("m", m, (2,), "range_bearing")
+    dx, dy = _offsets(x, m)
+    r = np.hypot(dx, dy)
+    phi = np.asarray(wrap_angle(np.arctan2(dy, dx) - x[..., 2]))
+    return np.stack(np.broadcast_arrays(r, phi), axis=-1)
+
+
+def landmark_from_measurement(x, z) -> np.ndarray:
+    """Landmark position ``m = h⁻¹(x, z)`` implied by measurement ``z`` from pose ``x``.
+
+    ``m_x = x + r cos(φ + θ)``, ``m_y = y + r sin(φ + θ)``.
+
+    Parameters
+    ----------
+    x : array_like, shape (..., 3)
+        Robot pose ``(x, y, θ)`` [m, m, rad].
+    z : array_like, shape (..., 2)
+        Measurement ``(r, φ)`` [m, rad], ``r ≥ 0``. Broadcasts against ``x``.
+
+    Returns
+    -------
+    m : ndarray, shape (..., 2)
+        Landmark position ``(m_x, m_y)`` [m] in the world frame.
+    """
+    x = _as_finite("x", x, (3,), "landmark_from_measurement")
+    z = _as_finite("z", z, (2,), "landmark_from_measurement")
+    _nonnegative_range(z, "landmark_from_measurement")
+    r, angle = z[..., 0], z[..., 1] + x[..., 2]
+    return np.stack((x[..., 0] + r * np.cos(angle), x[..., 1] + r * np.sin(angle)), axis=-1)
+
+
+def jacobian_landmark(x, m) -> np.ndarray:
+    """Jacobian ``H = ∂h/∂m`` of the measurement with respect to the landmark.
+
+    ::
+
+        H = [[ δx/r,   δy/r  ],        rows: r, φ
+             [-δy/r²,  δx/r² ]]        columns: m_x, m_y
+
+    This is the ``H`` of the FastSLAM 1.0 landmark EKF (the pose is given by
+    the particle, only the landmark is estimated). ``det H = 1/r``.
+
+    Parameters
+    ----------
+    x : array_like, shape (..., 3)
+        Robot pose ``(x, y, θ)`` [m, m, rad].
+    m : array_like, shape (..., 2)
+        Landmark position [m], not equal to the robot position.
+
+    Returns
+    -------
+    H : ndarray, shape (..., 2, 2)
+        Units: row r is dimensionless, row φ is rad/m.
+
+    Raises
+    ------
+    ValueError
+        If a landmark lies exactly on the robot (``r = 0``).
+    """
+    x = _as_finite("x", x, (3,), "jacobian_landmark")
+    m = _as_finite("m", m, (2,), "jacobian_landmark")
+    dx, dy = _offsets(x, m)
+    q = _nonzero_range(x, m, dx, dy, "jacobian_landmark")
+    r = np.sqrt(q)
+    row_r = np.stack((dx / r, dy / r), axis=-1)
+    row_phi = np.stack((-dy / q, dx / q), axis=-1)
+    return np.stack((row_r, row_phi), axis=-2)
+
+
+def jacobian_pose(x, m) -> np.ndarray:
+    """Jacobian ``∂h/∂x`` of the measurement with respect to the robot pose.
+
+    ::
+
+        ∂h/∂x = [[-δx/r,  -δy/r,   0],     rows: r, φ
+                 [ δy/r², -δx/r², -1]]     columns: x, y, θ
+
+    Not needed by FastSLAM 1.0 (the pose is sampled, not linearised); used by
+    FastSLAM 2.0's proposal and for teaching.
+
+    Parameters
+    ----------
+    x : array_like, shape (..., 3)
+        Robot pose ``(x, y, θ)`` [m, m, rad].
+    m : array_like, shape (..., 2)
+        Landmark position [m], not equal to the robot position.
+
+    Returns
+    -------
+    ndarray, shape (..., 2, 3)
+
+    Raises
+    ------
+    ValueError
+        If a landmark lies exactly on the robot (``r = 0``).
+    """
+    x = _as_finite("x", x, (3,), "jacobian_pose")
+    m = _as_finite("m", m, (2,), "jacobian_pose")
+    dx, dy = _offsets(x, m)
+    q = _nonzero_range(x, m, dx, dy, "jacobian_pose")
+    r = np.sqrt(q)
+    zero, one = np.zeros_like(r), np.ones_like(r)
+    row_r = np.stack((-dx / r, -dy / r, zero), axis=-1)
+    row_phi = np.stack((dy / q, -dx / q, -one), axis=-1)
+    return np.stack((row_r, row_phi), axis=-2)
+
+
+def jacobian_inverse(x, z) -> np.ndarray:
+    """Jacobian ``G = ∂h⁻¹/∂z`` of the inverse model with respect to the measurement.
+
+    ::
+
+        G = [[cos(φ+θ),  −r sin(φ+θ)],     rows: m_x, m_y
+             [sin(φ+θ),   r cos(φ+θ)]]     columns: r, φ
+
+    At ``m = h⁻¹(x, z)`` it equals ``H⁻¹`` (inverse function theorem), so a new
+    landmark gets the covariance ``Σ = G R Gᵀ = H⁻¹ R H⁻ᵀ``
+    (FastSLAM_1 line 9).
+
+    Parameters
+    ----------
+    x : array_like, shape (..., 3)
+        Robot pose ``(x, y, θ)`` [m, m, rad].
+    z : array_like, shape (..., 2)
+        Measurement ``(r, φ)`` [m, rad], ``r ≥ 0``.
+
+    Returns
+    -------
+    G : ndarray, shape (..., 2, 2)
+        Units: column r is dimensionless, column φ is m/rad.
+    """
+    x = _as_finite("x", x, (3,), "jacobian_inverse")
+    z = _as_finite("z", z, (2,), "jacobian_inverse")
+    _nonnegative_range(z, "jacobian_inverse")
+    r, angle = z[..., 0], z[..., 1] + x[..., 2]
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack((np.stack((c, -r * s), axis=-1), np.stack((s, r * c), axis=-1)), axis=-2)
+
+
+def innovation(z, z_hat) -> np.ndarray:
+    """Innovation ``ν = z ⊖ ẑ``: the range difference and the *wrapped* bearing difference.
+
+    ``ν = (r − r̂, wrap(φ − φ̂))`` with ``wrap`` to (−π, π], so that measured
+    179.5° against predicted −179.5° is a residual of −1°, not 359°.
+
+    Parameters
+    ----------
+    z, z_hat : array_like, shape (..., 2)
+        Measured and predicted ``(r, φ)`` [m, rad]; they broadcast.
+
+    Returns
+    -------
+    nu : ndarray, shape (..., 2)
+        ``(Δr [m], Δφ [rad] in (−π, π])``.
+    """
+    z = _as_finite("z", z, (2,), "innovation")
+    z_hat = _as_finite("z_hat", z_hat, (2,), "innovation")
+    dr = z[..., 0] - z_hat[..., 0]
+    dphi = np.asarray(wrap_angle(z[..., 1] - z_hat[..., 1]))
+    return np.stack(np.broadcast_arrays(dr, dphi), axis=-1)
