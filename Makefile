@@ -5,7 +5,6 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 export FASTSLAM_EDU_DATA ?= $(CURDIR)/data
-export MPLBACKEND ?= Agg
 
 .PHONY: venv book book-strict test test-package test-notebooks bench clean
 

@@ -46,7 +46,7 @@ import numpy as np
 
 from .angles import wrap_angle
 from .datasets.log import EventStream
-from .ekf import initialise_landmark, innovation_statistics, update_landmark
+from .ekf import initialise_landmark, update_landmark_unchecked
 from .motion import MotionNoise, move_segment
 from .resampling import get_resampler
 from .weights import effective_sample_size, weights_from_log
@@ -82,6 +82,11 @@ class FastSLAMParams:
         Outlier gate on :math:`\\nu^\\top Q^{-1}\\nu`; None disables it.
     mode : str
         ``"slam"``, ``"localize"`` (landmarks known, fixed) or ``"map"`` (poses known).
+    odometry_scale : (float, float)
+        Calibration :math:`(k_v, k_\\omega)` of the commands: the filter moves with
+        :math:`(k_v v, k_\\omega \\omega)`. MR.CLAM's odometry is the *commanded*
+        velocity, and the robots turn less than commanded (see
+        :mod:`fastslam_edu.noise_estimation`).
     """
 
     n_particles: int = 100
@@ -95,6 +100,7 @@ class FastSLAMParams:
     resample_threshold: float = 0.5
     gate_chi2: float | None = CHI2_2DOF_999
     mode: str = "slam"
+    odometry_scale: tuple[float, float] = (1.0, 1.0)
 
     def __post_init__(self):
         if int(self.n_particles) < 1:
@@ -183,7 +189,7 @@ def propagate(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.
     u = np.atleast_2d(np.asarray(u, dtype=float))
     dt = np.atleast_1d(np.asarray(dt, dtype=float))
     eps = rng.standard_normal((len(particles), len(dt), noise.n_draws))
-    path = move_segment(particles.poses, u, dt, noise, eps)
+    path = move_segment(particles.poses, u, dt, noise, eps, check=False)
     particles.poses = path[:, -1].copy()
     return path
 
@@ -199,39 +205,45 @@ def update_with_measurement(
     log weight. With ``update_map=False`` (localisation with a known map) only
     the weight changes.
 
+    The gate (robust weighting): for a particle whose squared Mahalanobis
+    distance :math:`d^2 = \\nu^\\top Q^{-1} \\nu` exceeds ``gate_chi2``, the measurement
+    is an outlier — a misread range, a reflection — *for that particle*: its
+    landmark is not updated, and its log-likelihood is floored at the value it
+    would have at :math:`d^2 = ` ``gate_chi2``. One bad measurement then cannot
+    wipe out the particles, and a particle that disagrees with a good
+    measurement is still penalised down to the floor. A filter that is far off
+    keeps its map intact instead of bending it to wrong poses.
+
     Returns
     -------
     bool
-        False when the gate rejected the measurement (nothing changed).
+        False when the measurement was an outlier for particles holding more
+        than half of the weight (counted as "rejected" in reports).
     """
     z = np.asarray(z, dtype=float)
     seen = particles.seen[:, k].copy()  # a copy: initialising below must not change it
-    if gate_chi2 is not None and seen.any():
-        _, d2 = innovation_statistics(
-            particles.mu[seen, k], particles.sigma[seen, k], particles.poses[seen], z, R
-        )
-        w = particles.weights[seen]
-        if np.sum(w * (d2 > gate_chi2)) > 0.5 * np.sum(w):
-            return False
-    if seen.all():
-        mu, sigma, loglik = update_landmark(
-            particles.mu[:, k], particles.sigma[:, k], particles.poses, z, R
-        )
-        particles.logw += loglik
-        if update_map:
-            particles.mu[:, k], particles.sigma[:, k] = mu, sigma
-        return True
-    new = ~seen
-    particles.mu[new, k], particles.sigma[new, k] = initialise_landmark(particles.poses[new], z, R)
-    particles.seen[new, k] = True
+    accepted = True
     if seen.any():
-        mu, sigma, loglik = update_landmark(
-            particles.mu[seen, k], particles.sigma[seen, k], particles.poses[seen], z, R
+        idx = slice(None) if seen.all() else seen
+        mu, sigma, loglik, d2 = update_landmark_unchecked(
+            particles.mu[idx, k], particles.sigma[idx, k], particles.poses[idx], z, R
         )
-        particles.logw[seen] += loglik
+        if gate_chi2 is not None:
+            outlier = d2 > gate_chi2
+            if outlier.any():
+                loglik = np.where(outlier, loglik + 0.5 * (d2 - gate_chi2), loglik)
+                accepted = float(weights_from_log(particles.logw[idx]) @ outlier) <= 0.5
+                keep = ~outlier
+                mu = np.where(keep[:, None], mu, particles.mu[idx, k])
+                sigma = np.where(keep[:, None, None], sigma, particles.sigma[idx, k])
+        particles.logw[idx] += loglik
         if update_map:
-            particles.mu[seen, k], particles.sigma[seen, k] = mu, sigma
-    return True
+            particles.mu[idx, k], particles.sigma[idx, k] = mu, sigma
+    if not seen.all():
+        new = ~seen
+        particles.mu[new, k], particles.sigma[new, k] = initialise_landmark(particles.poses[new], z, R)
+        particles.seen[new, k] = True
+    return accepted
 
 
 def resample_if_needed(
@@ -244,7 +256,7 @@ def resample_if_needed(
     the old weights as well would count it twice).
     """
     w = particles.weights
-    n_eff = effective_sample_size(w)
+    n_eff = 1.0 / np.dot(w, w)  # effective_sample_size(w), without re-checking w
     if n_eff < threshold * len(particles):
         return particles.select(get_resampler(resampler)(w, rng)), n_eff, True
     return particles, n_eff, False
@@ -256,10 +268,12 @@ def combined_pose(poses, w) -> np.ndarray:
     ``poses`` (M, ..., 3), ``w`` (M,) normalised; returns (..., 3).
     """
     poses = np.asarray(poses, dtype=float)
-    xy = np.tensordot(w, poses[..., :2], axes=(0, 0))
-    s = np.tensordot(w, np.sin(poses[..., 2]), axes=(0, 0))
-    c = np.tensordot(w, np.cos(poses[..., 2]), axes=(0, 0))
-    return np.concatenate([xy, np.arctan2(s, c)[..., None]], axis=-1)
+    theta = poses[..., 2]
+    out = np.empty(poses.shape[1:])
+    out[..., 0] = w @ poses[..., 0]
+    out[..., 1] = w @ poses[..., 1]
+    out[..., 2] = np.arctan2(w @ np.sin(theta), w @ np.cos(theta))
+    return out
 
 
 def combined_map(particles: ParticleSet):
@@ -404,18 +418,24 @@ def run_fastslam(
 
         bar = tqdm(total=N, unit="step", desc=f"FastSLAM M={M}", mininterval=0.5)
     t_start = time.perf_counter()
+    u_all = np.asarray(stream.u, dtype=float) * np.asarray(params.odometry_scale, dtype=float)
+    dt_all = np.asarray(stream.dt, dtype=float)
+    if not (np.isfinite(u_all).all() and np.isfinite(dt_all).all()) or (dt_all < 0).any():
+        raise ValueError("the event stream has non-finite commands or negative time steps")
+    w = particles.weights
     for s, e in _segments(stream, () if kidnap is None else (kidnap[0],)):
-        w = particles.weights
         if params.mode == "map":
             path = np.broadcast_to(groundtruth_poses(stream.t[s : e + 1]), (M, e - s + 1, 3))
             particles.poses = np.array(path[:, -1])
         else:
-            path = propagate(particles, stream.u[s : e + 1], stream.dt[s : e + 1], params.motion_noise, rng)
-        pose_mean[s : e + 1] = combined_pose(path, w)
-        pose_best[s : e + 1] = path[int(np.argmax(w))]
+            path = propagate(particles, u_all[s : e + 1], dt_all[s : e + 1], params.motion_noise, rng)
+        z, lm = stream.measurements_at(e)
+        last = e if len(z) else e + 1  # a measurement step's estimate is taken after the update
+        if last > s:
+            pose_mean[s:last] = combined_pose(path[:, : last - s], w)
+            pose_best[s:last] = path[int(np.argmax(w)), : last - s]
         if kidnap_step is not None and s <= kidnap_step <= e:
             particles.poses[:] = np.asarray(kidnap[1], dtype=float)
-        z, lm = stream.measurements_at(e)
         if len(z):
             for zi, ki in zip(z, lm):
                 ok = update_with_measurement(

@@ -45,32 +45,28 @@ class Particle:
         return copy.deepcopy(self)
 
 
-def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True) -> None:
-    """Lines 6–18 of FastSLAM_1 for one particle and one measurement."""
+def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_chi2=None) -> bool:
+    """Lines 6–18 of FastSLAM_1 for one particle and one measurement.
+
+    With a gate: if ``d² = νᵀQ⁻¹ν > gate_chi2`` the measurement is an outlier for
+    this particle — its landmark is left alone and its log weight drops by
+    the floored amount ``log N`` at ``d² = gate_chi2``. Returns True if it was an outlier.
+    """
     if j not in p.landmarks:
         mu, sigma = initialise_landmark(p.pose, z, R)
         p.landmarks[j] = (mu, sigma)
-        return
+        return False
     mu, sigma = p.landmarks[j]
     mu_new, sigma_new, loglik = update_landmark_one(mu, sigma, p.pose, z, R)
+    if gate_chi2 is not None:
+        _, d2 = innovation_statistics(mu, sigma, p.pose, z, R)
+        if d2 > gate_chi2:
+            p.logw += loglik + 0.5 * (float(d2) - gate_chi2)
+            return True
     p.logw += loglik
     if update_map:
         p.landmarks[j] = (mu_new, sigma_new)
-
-
-def gate_rejects(particles: list[Particle], z, j: int, R, gate_chi2) -> bool:
-    """True if particles holding more than half the weight see ``z`` as an outlier."""
-    if gate_chi2 is None:
-        return False
-    w = weights_from_log(np.array([p.logw for p in particles]))
-    outlier_weight = seen_weight = 0.0
-    for p, wm in zip(particles, w):
-        if j in p.landmarks:
-            mu, sigma = p.landmarks[j]
-            _, d2 = innovation_statistics(mu, sigma, p.pose, z, R)
-            seen_weight += wm
-            outlier_weight += wm * float(d2 > gate_chi2)
-    return seen_weight > 0 and outlier_weight > 0.5 * seen_weight
+    return False
 
 
 def run_fastslam_loop(
@@ -108,10 +104,8 @@ def run_fastslam_loop(
         if len(z) == 0:
             continue
         for zi, j in zip(z, lm):
-            if gate_rejects(particles, zi, int(j), R, params.gate_chi2):
-                continue
             for p in particles:
-                update_particle(p, zi, int(j), R, update_map=params.mode != "localize")
+                update_particle(p, zi, int(j), R, update_map=params.mode != "localize", gate_chi2=params.gate_chi2)
         w = weights_from_log(np.array([p.logw for p in particles]))
         if effective_sample_size(w) < params.resample_threshold * M:
             idx = get_resampler(params.resampler)(w, rng)

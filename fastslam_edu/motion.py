@@ -356,7 +356,24 @@ def move(x, u, dt: float, noise: MotionNoise, eps) -> np.ndarray:
     return moved
 
 
-def move_segment(x, u, dt, noise: MotionNoise, eps) -> np.ndarray:
+def _check_segment(x, u, dt, noise, eps) -> None:
+    x = _check_poses(x)
+    u = np.asarray(u, dtype=float)
+    dt = np.asarray(dt, dtype=float)
+    if x.ndim != 2 or u.ndim != 2 or u.shape[1] != 2 or dt.shape != (u.shape[0],):
+        raise ValueError(
+            f"move_segment expects x (M, 3), u (L, 2), dt (L,); got {x.shape}, {u.shape}, {dt.shape}"
+        )
+    if not (np.isfinite(u).all() and np.isfinite(dt).all()) or (dt < 0).any():
+        raise ValueError("move_segment: u and dt must be finite and dt >= 0")
+    if not isinstance(noise, MotionNoise):
+        raise ValueError(f"noise must be a MotionNoise, got {type(noise).__name__}")
+    shape = (x.shape[0], u.shape[0], noise.n_draws)
+    if np.shape(eps) != shape or not np.isfinite(eps).all():
+        raise ValueError(f"eps must be finite with shape {shape}, got {np.shape(eps)}")
+
+
+def move_segment(x, u, dt, noise: MotionNoise, eps, *, check: bool = True) -> np.ndarray:
     """:func:`move` through ``L`` consecutive steps at once, for ``M`` particles.
 
     Applying :func:`move` ``L`` times is a running sum: with the per-step
@@ -379,24 +396,18 @@ def move_segment(x, u, dt, noise: MotionNoise, eps) -> np.ndarray:
     eps : array_like, shape (M, L, noise.n_draws)
         Standard normal draws.
 
+    check : bool
+        Validate the inputs (the filter, which validated its stream once, passes False).
+
     Returns
     -------
     ndarray, shape (M, L, 3)
         Every pose after each step (heading wrapped).
     """
-    x = _check_poses(x)
-    u = np.asarray(u, dtype=float)
-    dt = np.asarray(dt, dtype=float)
-    if x.ndim != 2 or u.ndim != 2 or u.shape[1] != 2 or dt.shape != (u.shape[0],):
-        raise ValueError(
-            f"move_segment expects x (M, 3), u (L, 2), dt (L,); got {x.shape}, {u.shape}, {dt.shape}"
-        )
-    if not (np.isfinite(u).all() and np.isfinite(dt).all()) or (dt < 0).any():
-        raise ValueError("move_segment: u and dt must be finite and dt >= 0")
+    x, u, dt = (np.asarray(a, dtype=float) for a in (x, u, dt))
+    if check:
+        _check_segment(x, u, dt, noise, eps)
     M, L = x.shape[0], u.shape[0]
-    eps = np.asarray(eps, dtype=float)
-    if eps.shape != (M, L, noise.n_draws):
-        raise ValueError(f"eps must have shape {(M, L, noise.n_draws)}, got {eps.shape}")
     sq = np.sqrt(dt)
     ds = u[:, 0] * dt
     dth = u[:, 1] * dt
@@ -413,8 +424,11 @@ def move_segment(x, u, dt, noise: MotionNoise, eps) -> np.ndarray:
     theta_end = x[:, 2:3] + np.cumsum(dth, axis=1)  # heading after each step
     theta_start = theta_end - dth  # heading at the start of each step
     path = np.empty((M, L, 3))
-    path[..., 0] = x[:, 0:1] + np.cumsum(ds * np.cos(theta_start), axis=1) + ex
-    path[..., 1] = x[:, 1:2] + np.cumsum(ds * np.sin(theta_start), axis=1) + ey
+    # cos and sin in single precision: numpy vectorises them (~10× faster than
+    # double here); a 1e-7 rad rounding of θ moves a ~5 mm step by 5e-10 m.
+    heading = theta_start.astype(np.float32)
+    path[..., 0] = x[:, 0:1] + np.cumsum(ds * np.cos(heading), axis=1) + ex
+    path[..., 1] = x[:, 1:2] + np.cumsum(ds * np.sin(heading), axis=1) + ey
     path[..., 2] = wrap_angle(theta_end)
     return path
 

@@ -220,6 +220,14 @@ def weights_from_log(logw, *, on_degenerate: OnDegenerate = "uniform") -> np.nda
     ndarray, shape (..., M)
         Non-negative weights, each row summing to 1 (to round-off).
     """
+    a = logw if isinstance(logw, np.ndarray) and logw.dtype == float else None
+    if a is not None and a.ndim == 1 and a.size:
+        # Fast path for the filter's inner loop: NaN and +inf make the maximum
+        # non-finite, and so does a row of all -inf; those go to the checked path.
+        top = a.max()
+        if np.isfinite(top):
+            w = np.exp(a - top)
+            return w / w.sum()
     w = np.exp(normalise_log_weights(logw, on_degenerate=on_degenerate))
     # exp of normalised logs already sums to 1 within a few ulps; divide once
     # more so the sum is as close to 1 as floating point allows.
