@@ -44,7 +44,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .angles import wrap_angle
 from .datasets.log import EventStream
 from .ekf import initialise_landmark, update_landmark_unchecked
 from .motion import MotionNoise, move_segment
@@ -246,6 +245,51 @@ def update_with_measurement(
     return accepted
 
 
+def update_with_measurements(
+    particles: ParticleSet, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None
+) -> np.ndarray:
+    """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,).
+
+    Measurements of *different* landmarks are independent given the pose, so
+    they are applied at once on (M, n) arrays — the same numbers as applying
+    them one by one with :func:`update_with_measurement` (log weights add).
+    A landmark seen twice at one instant is applied in a second round, after
+    the first. Returns a bool (n,): False where the gate rejected the measurement.
+    """
+    z = np.asarray(z, dtype=float).reshape(-1, 2)
+    k = np.asarray(k, dtype=int).reshape(-1)
+    accepted = np.ones(len(k), dtype=bool)
+    first = np.unique(k, return_index=True)[1]
+    if len(first) < len(k):  # the same landmark twice: distinct ones first, then the rest
+        rest = np.setdiff1d(np.arange(len(k)), first)
+        accepted[first] = update_with_measurements(particles, z[first], k[first], R, update_map=update_map, gate_chi2=gate_chi2)
+        accepted[rest] = update_with_measurements(particles, z[rest], k[rest], R, update_map=update_map, gate_chi2=gate_chi2)
+        return accepted
+    seen = particles.seen[:, k]  # (M, n), a copy
+    batch = seen.all(axis=0)  # landmarks every particle has seen: the common case
+    if batch.any():
+        kb = k[batch]
+        mu, sigma, loglik, d2 = update_landmark_unchecked(
+            particles.mu[:, kb], particles.sigma[:, kb], particles.poses[:, None, :], z[batch], R
+        )  # (M, nb, ...)
+        if gate_chi2 is not None:
+            outlier = d2 > gate_chi2
+            if outlier.any():
+                loglik = np.where(outlier, loglik + 0.5 * (d2 - gate_chi2), loglik)
+                accepted[batch] = weights_from_log(particles.logw) @ outlier <= 0.5
+                keep = ~outlier
+                mu = np.where(keep[..., None], mu, particles.mu[:, kb])
+                sigma = np.where(keep[..., None, None], sigma, particles.sigma[:, kb])
+        particles.logw += loglik.sum(axis=1)
+        if update_map:
+            particles.mu[:, kb], particles.sigma[:, kb] = mu, sigma
+    for j in np.flatnonzero(~batch):  # first sightings (or particles that differ)
+        accepted[j] = update_with_measurement(
+            particles, z[j], int(k[j]), R, update_map=update_map, gate_chi2=gate_chi2
+        )
+    return accepted
+
+
 def resample_if_needed(
     particles: ParticleSet, resampler: str, threshold: float, rng: np.random.Generator
 ) -> tuple[ParticleSet, float, bool]:
@@ -437,12 +481,11 @@ def run_fastslam(
         if kidnap_step is not None and s <= kidnap_step <= e:
             particles.poses[:] = np.asarray(kidnap[1], dtype=float)
         if len(z):
-            for zi, ki in zip(z, lm):
-                ok = update_with_measurement(
-                    particles, zi, int(ki), R, update_map=update_map, gate_chi2=params.gate_chi2
-                )
-                used += ok
-                rejected += not ok
+            ok = update_with_measurements(
+                particles, z, lm, R, update_map=update_map, gate_chi2=params.gate_chi2
+            )
+            used += int(ok.sum())
+            rejected += int((~ok).sum())
             particles, n_eff, did = resample_if_needed(
                 particles, params.resampler, params.resample_threshold, rng
             )
@@ -492,10 +535,10 @@ __all__ = [
     "FastSLAMResult",
     "propagate",
     "update_with_measurement",
+    "update_with_measurements",
     "resample_if_needed",
     "combined_pose",
     "combined_map",
     "run_fastslam",
     "with_params",
-    "wrap_angle",
 ]

@@ -19,12 +19,19 @@ def data_root() -> Path:
     return Path(os.environ.get(ENV_VAR, "data")).expanduser().resolve()
 
 
-def mrclam_path(n: int) -> Path:
+def mrclam_path(n: int, *, download: bool = False) -> Path:
     """Folder of MR.CLAM dataset ``n``: ``<data_root>/mrclam/MRCLAM_Dataset{n}``.
 
-    Raises FileNotFoundError, saying how to get the data, if it is not there.
+    With ``download=True`` a missing dataset is fetched from its official page
+    first (:func:`fastslam_edu.datasets.fetch.fetch_mrclam`) — what a notebook on
+    Colab or Binder, which has no local data, needs. Otherwise a missing folder
+    raises FileNotFoundError, saying how to get the data.
     """
     p = data_root() / "mrclam" / f"MRCLAM_Dataset{n}"
+    if not p.is_dir() and download:
+        from .fetch import fetch_mrclam
+
+        return fetch_mrclam(n, data_root() / "mrclam")
     if not p.is_dir():
         raise FileNotFoundError(
             f"MR.CLAM dataset {n} not found at {p}. Set {ENV_VAR} to the folder that holds "

@@ -1,0 +1,96 @@
+"""FastSLAM 1.0 on MR.CLAM: speed and accuracy, printed as a table and written as JSON.
+
+(a) the write-up's setting: Dataset 1 robot 2, 1 Hz, 100 particles;
+(b) full rate, Dataset 1 robot 2, 100 and 1000 particles;
+(c) the textbook loop reference against the vectorised engine on the same work
+    (same stream, particles and seed), as a ratio measured in this run.
+
+The write-up's own code, measured on a machine like this one
+(../shared/reference/README.md): 11.9 s for its 1489-step loop (13.0 s whole run).
+
+Usage: python benchmarks/fastslam_mrclam.py [--seeds N] [--out FILE]
+(data from $FASTSLAM_EDU_DATA, default ./data)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import machine_info  # noqa: E402
+
+from fastslam_edu.datasets import mrclam_path  # noqa: E402
+from fastslam_edu.datasets.events import event_stream  # noqa: E402
+from fastslam_edu.experiment import load_mrclam, summarize  # noqa: E402
+from fastslam_edu.fastslam import FastSLAMParams, run_fastslam, with_params  # noqa: E402
+from fastslam_edu.fastslam_loop import run_fastslam_loop  # noqa: E402
+
+REFERENCE_LOOP_SECONDS = 11.9  # the write-up's code, 1489-step loop, 100 particles
+
+
+def case(stream, dataset, log, params, seeds):
+    rows = []
+    for seed in seeds:
+        result = run_fastslam(stream, params, np.random.default_rng(seed))
+        rows.append(summarize(result, dataset, log))
+    times = [r["filter_seconds"] for r in rows]
+    pick = lambda k: [r[k] for r in rows]  # noqa: E731
+    return {
+        "seconds_median": statistics.median(times),
+        "seconds_min": min(times),
+        "path_rmse_m_median": statistics.median(pick("path_rmse_m")),
+        "landmark_error_mean_m_median": statistics.median(pick("landmark_error_mean_m")),
+        "landmark_error_aligned_mean_m_median": statistics.median(pick("landmark_error_aligned_mean_m")),
+        "steps": rows[0]["steps"],
+        "measurements": rows[0]["measurements_used"] + rows[0]["measurements_rejected"],
+        "seeds": list(seeds),
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "fastslam_mrclam.json")
+    args = ap.parse_args(argv)
+    seeds = range(args.seeds)
+    dataset, log, notes = load_mrclam(mrclam_path(1), 2)
+    full = event_stream(log, dataset.landmark_subjects, rate="full")
+    onehz = event_stream(log, dataset.landmark_subjects, rate="1hz")
+    base = FastSLAMParams(n_particles=100)
+    results = {"machine": machine_info(), "notes": notes, "reference_loop_seconds": REFERENCE_LOOP_SECONDS}
+    results["a_writeup_1hz_M100"] = case(onehz, dataset, log, base, seeds)
+    results["b_full_M100"] = case(full, dataset, log, base, seeds)
+    results["b_full_M1000"] = case(full, dataset, log, with_params(base, n_particles=1000), seeds[:2])
+    # (c) loop reference vs vectorised engine, same work, same seed
+    t = time.perf_counter()
+    run_fastslam_loop(onehz, base, np.random.default_rng(0))
+    loop_s = time.perf_counter() - t
+    t = time.perf_counter()
+    run_fastslam(onehz, base, np.random.default_rng(0))
+    vec_s = time.perf_counter() - t
+    results["c_loop_vs_vectorised_1hz_M100"] = {"loop_seconds": loop_s, "vectorised_seconds": vec_s, "ratio": loop_s / vec_s}
+
+    print(f"machine: {results['machine'].get('cpu_model', '?')}, {results['machine']['cpu_count']} cores, numpy {results['machine']['numpy']}")
+    print(f"{'case':<28} {'steps':>7} {'meas':>6} {'time [s]':>9} {'vs ref':>8} {'path RMSE':>10} {'lm err':>7} {'lm aligned':>10}")
+    for name in ("a_writeup_1hz_M100", "b_full_M100", "b_full_M1000"):
+        r = results[name]
+        print(f"{name:<28} {r['steps']:>7} {r['measurements']:>6} {r['seconds_median']:>9.3f} "
+              f"{REFERENCE_LOOP_SECONDS / r['seconds_median']:>7.0f}x {r['path_rmse_m_median']:>10.3f} "
+              f"{r['landmark_error_mean_m_median']:>7.3f} {r['landmark_error_aligned_mean_m_median']:>10.3f}")
+    c = results["c_loop_vs_vectorised_1hz_M100"]
+    print(f"loop reference {c['loop_seconds']:.2f} s vs vectorised {c['vectorised_seconds']:.3f} s: {c['ratio']:.0f}x (same stream, M=100, seed 0)")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=2))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
