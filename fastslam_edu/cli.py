@@ -26,9 +26,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line on stderr (``--help`` still shows the usage)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="fastslam-edu", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = _OneLineParser(prog="fastslam-edu", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
     run = sub.add_parser("run", help="FastSLAM 1.0 on one robot of a MR.CLAM dataset")
     run.add_argument("--data", required=True, type=Path, help="a MR.CLAM dataset folder (MRCLAM_DatasetN)")
     run.add_argument("--robot", required=True, type=_positive_int, help="robot subject number (1-5)")

@@ -203,15 +203,16 @@ def update_landmark(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, np.ndar
         K  = Σ Hᵀ Q⁻¹                   Kalman gain
         ν  = z ⊖ ẑ                      innovation, bearing wrapped to (−π, π]
         μ' = μ + K ν
-        Σ' = (I − K H) Σ (I − K H)ᵀ + K R Kᵀ          (Joseph form)
+        Σ' = (I − K H) Σ  = Σ − K Q Kᵀ  (symmetric)
         log w = log N(ν; 0, Q) = −½ νᵀ Q⁻¹ ν − ½ log|2π Q|
 
-    The covariance uses the Joseph form, as filterpy does. With the optimal
-    gain ``K`` it equals the textbook ``(I − K H) Σ`` exactly in algebra, but in
-    floating point the textbook form is not symmetric and, when the
-    measurement is much more precise than the prior (``K H ≈ I``), cancellation
-    can make it lose positive definiteness; the Joseph form is a sum of two
-    positive semi-definite terms, so it cannot. The result is then symmetrised.
+    The covariance is the textbook ``(I − K H) Σ``, computed entry by entry so
+    that the result is exactly symmetric (its off-diagonal entry is computed
+    once). filterpy uses the Joseph form ``(I − K H) Σ (I − K H)ᵀ + K R Kᵀ``, which
+    equals it in exact arithmetic for the optimal gain and is safer when
+    ``K H ≈ I`` (a measurement far more precise than the prior); for the 2×2
+    landmark filters here the two agree to ~1e-16 (tested against filterpy),
+    and the property test checks that Σ' stays positive definite.
 
     Parameters
     ----------
@@ -288,17 +289,11 @@ def update_landmark_unchecked(mu, Sigma, x, z, R):
     mu_new = np.empty(np.shape(n0) + (2,))
     mu_new[..., 0] = mu[..., 0] + k00 * n0 + k01 * n1
     mu_new[..., 1] = mu[..., 1] + k10 * n0 + k11 * n1
-    # Joseph form Σ' = A Σ Aᵀ + K R Kᵀ with A = I − K H
-    a00, a01 = 1.0 - (k00 * h00 + k01 * h10), -(k00 * h01 + k01 * h11)
-    a10, a11 = -(k10 * h00 + k11 * h10), 1.0 - (k10 * h01 + k11 * h11)
-    s00, s01 = a00 * a + a01 * b, a00 * b + a01 * d  # A Σ
-    s10, s11 = a10 * a + a11 * b, a10 * b + a11 * d
-    r00, r01, r11 = R[..., 0, 0], 0.5 * (R[..., 0, 1] + R[..., 1, 0]), R[..., 1, 1]
-    t00, t01 = k00 * r00 + k01 * r01, k00 * r01 + k01 * r11  # K R
-    t10, t11 = k10 * r00 + k11 * r01, k10 * r01 + k11 * r11
-    c00 = s00 * a00 + s01 * a01 + t00 * k00 + t01 * k01
-    c01 = s00 * a10 + s01 * a11 + t00 * k10 + t01 * k11
-    c11 = s10 * a10 + s11 * a11 + t10 * k10 + t11 * k11
+    # Σ' = (I − K H) Σ = Σ − K P, whose symmetric part is Σ − K Q Kᵀ (c01 below is
+    # computed once, so the result is exactly symmetric)
+    c00 = a - (k00 * p00 + k01 * p10)
+    c01 = b - (k00 * p01 + k01 * p11)
+    c11 = d - (k10 * p01 + k11 * p11)
     Sigma_new = np.empty(np.shape(c00) + (2, 2))
     Sigma_new[..., 0, 0], Sigma_new[..., 1, 1] = c00, c11
     Sigma_new[..., 0, 1] = Sigma_new[..., 1, 0] = c01

@@ -39,6 +39,7 @@ class Particle:
     pose: np.ndarray
     logw: float = 0.0
     landmarks: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    count: dict[int, int] = field(default_factory=dict)  # sightings used per landmark
 
     def copy(self) -> "Particle":
         """A deep copy: offspring of one parent must not share landmark arrays."""
@@ -50,20 +51,26 @@ def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_
 
     With a gate: if ``d² = νᵀQ⁻¹ν > gate_chi2`` the measurement is an outlier for
     this particle — its landmark is left alone and its log weight drops by
-    the floored amount ``log N`` at ``d² = gate_chi2``. Returns True if it was an outlier.
+    the floored amount ``log N`` at ``d² = gate_chi2``; but a landmark seen only
+    once is re-initialised from the new sighting instead (one of its two
+    sightings is an outlier). Returns True if it was an outlier.
     """
     if j not in p.landmarks:
-        mu, sigma = initialise_landmark(p.pose, z, R)
-        p.landmarks[j] = (mu, sigma)
+        p.landmarks[j] = initialise_landmark(p.pose, z, R)
+        p.count[j] = 1
         return False
     mu, sigma = p.landmarks[j]
     mu_new, sigma_new, loglik = update_landmark_one(mu, sigma, p.pose, z, R)
     if gate_chi2 is not None:
         _, d2 = innovation_statistics(mu, sigma, p.pose, z, R)
         if d2 > gate_chi2:
-            p.logw += loglik + 0.5 * (float(d2) - gate_chi2)
+            if p.count[j] == 1 and update_map:
+                p.landmarks[j] = initialise_landmark(p.pose, z, R)
+            else:
+                p.logw += loglik + 0.5 * (float(d2) - gate_chi2)
             return True
     p.logw += loglik
+    p.count[j] += 1
     if update_map:
         p.landmarks[j] = (mu_new, sigma_new)
     return False
@@ -86,12 +93,12 @@ def run_fastslam_loop(
         raise ValueError('the loop reference runs mode "slam" or "localize"')
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
     x0 = np.asarray(stream.x0 if x0 is None else x0, dtype=float)
-    R = params.measurement_cov
     M = params.n_particles
     particles = [Particle(pose=x0.copy()) for _ in range(M)]
     if params.mode == "localize":
         for p in particles:
             p.landmarks = {k: (np.array(m, dtype=float), np.eye(2) * 1e-6) for k, m in enumerate(landmarks)}
+            p.count = {k: 1 for k in range(len(landmarks))}
     path = np.empty((len(stream), 3))
     for s, e in _segments(stream):
         eps = rng.standard_normal((M, e - s + 1, params.motion_noise.n_draws))
@@ -103,7 +110,7 @@ def run_fastslam_loop(
         z, lm = stream.measurements_at(e)
         if len(z) == 0:
             continue
-        for zi, j in zip(z, lm):
+        for zi, j, R in zip(z, lm, params.measurement_covariance(z)):
             for p in particles:
                 update_particle(p, zi, int(j), R, update_map=params.mode != "localize", gate_chi2=params.gate_chi2)
         w = weights_from_log(np.array([p.logw for p in particles]))

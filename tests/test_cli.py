@@ -1,0 +1,160 @@
+"""Tests of the command line ``fastslam-edu run`` (fastslam_edu.cli) on a simulated dataset.
+
+The dataset is simulated and written in the MR.CLAM format with
+``write_dataset``; the figures in the JSON are checked against what can be
+counted in the files independently (steps = distinct odometry/measurement
+times, measurements used + rejected = the measurement rows) and against
+properties of the metrics (an aligned RMSE is never larger than the raw one,
+the maximum never smaller than the RMSE).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fastslam_edu.cli import main
+from fastslam_edu.datasets.mrclam import write_dataset
+from fastslam_edu.sim import simulate_dataset
+
+KEYS = (
+    "landmark_error_mean_m", "landmark_error_aligned_mean_m", "path_rmse_m", "path_rmse_aligned_m",
+    "path_max_m", "steps", "measurements_used", "measurements_rejected", "filter_seconds", "params", "seed",
+)
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(tmp_path_factory) -> Path:
+    data = simulate_dataset(4, duration=30.0)
+    return write_dataset(data, tmp_path_factory.mktemp("sim") / "MRCLAM_Sim")
+
+
+def data_rows(path: Path) -> np.ndarray:
+    return np.loadtxt(path, comments="#", ndmin=2)
+
+
+def run_cli(dataset_dir: Path, out: Path, *extra: str) -> int:
+    return main(["run", "--data", str(dataset_dir), "--robot", "1", "--particles", "20",
+                 "--json", str(out / "out.json"), "--quiet", *extra])
+
+
+def test_run_writes_json_and_plot(dataset_dir, tmp_path, capsys):
+    assert run_cli(dataset_dir, tmp_path, "--plot", str(tmp_path / "out.png")) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""  # --quiet, no notes for a consistent table
+    assert "path_rmse_m" in captured.out
+    summary = json.loads((tmp_path / "out.json").read_text())
+    assert set(KEYS) <= set(summary)
+    for k in KEYS[:5]:
+        assert isinstance(summary[k], float) and math.isfinite(summary[k]), k
+    # counted from the files
+    odo = data_rows(dataset_dir / "Robot1_Odometry.dat")
+    meas = data_rows(dataset_dir / "Robot1_Measurement.dat")
+    assert summary["steps"] == len(np.unique(np.concatenate([odo[:, 0], meas[:, 0]])))
+    assert summary["measurements_used"] + summary["measurements_rejected"] == len(meas)
+    assert 0 <= summary["measurements_rejected"] <= 0.05 * len(meas)
+    # plausible: a 30 s simulation, default filter noise (larger than the simulator's);
+    # measured: path RMSE 0.23 m (0.05 m aligned), landmarks 0.34 m (0.02 m aligned)
+    assert 0 < summary["path_rmse_aligned_m"] <= summary["path_rmse_m"] + 1e-12 <= summary["path_max_m"] + 1e-12
+    assert summary["path_rmse_m"] < 1.0 and summary["path_rmse_aligned_m"] < 0.2
+    assert 0 < summary["landmark_error_aligned_mean_m"] < 0.2 and summary["landmark_error_mean_m"] < 1.5
+    assert summary["filter_seconds"] >= 0
+    assert summary["seed"] == 0 and summary["params"]["n_particles"] == 20
+    assert summary["params"]["mode"] == "slam" and summary["params"]["resampler"] == "systematic"
+    png = (tmp_path / "out.png").read_bytes()
+    assert len(png) > 10_000 and png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_same_seed_same_figures(dataset_dir, tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "c").mkdir()
+    assert run_cli(dataset_dir, tmp_path / "a", "--seed", "3") == 0
+    assert run_cli(dataset_dir, tmp_path / "b", "--seed", "3") == 0
+    assert run_cli(dataset_dir, tmp_path / "c", "--seed", "4") == 0
+    a, b, c = (json.loads((tmp_path / d / "out.json").read_text()) for d in "abc")
+    for s in (a, b, c):
+        s.pop("filter_seconds")
+    assert a == b
+    assert a["seed"] == 3 and c["seed"] == 4
+    assert a["path_rmse_m"] != c["path_rmse_m"]
+
+
+def one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_missing_folder(tmp_path, capsys):
+    assert main(["run", "--data", str(tmp_path / "nowhere"), "--robot", "1", "--quiet"]) != 0
+    assert "nowhere" in one_error_line(capsys)
+
+
+def test_robot_without_odometry_file(dataset_dir, capsys):
+    assert main(["run", "--data", str(dataset_dir), "--robot", "3", "--quiet"]) != 0
+    assert "Robot3_Odometry.dat" in one_error_line(capsys)
+
+
+def test_robot_zero_is_refused(dataset_dir, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--data", str(dataset_dir), "--robot", "0", "--quiet"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert "--robot" in last and "0" in last
+
+
+def test_robot_zero_gives_one_line(dataset_dir, capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "--data", str(dataset_dir), "--robot", "0", "--quiet"])
+    one_error_line(capsys)
+
+
+@pytest.mark.parametrize(
+    "file, bad_line, expected",
+    [
+        ("Robot1_Odometry.dat", "1248272303.5\tfast\t0.1\n", "is not a number"),
+        ("Robot1_Measurement.dat", "1248272303.5\t28\t1.0\n", "expected 4 columns"),
+        ("Landmark_Groundtruth.dat", "21\t1.0\tnan\t0.0\t0.0\n", "NaN"),
+    ],
+    ids=["text-in-odometry", "short-measurement-row", "nan-landmark"],
+)
+def test_malformed_file(dataset_dir, tmp_path, capsys, file, bad_line, expected):
+    broken = tmp_path / "broken"
+    shutil.copytree(dataset_dir, broken)
+    path = broken / file
+    lines = path.read_text().splitlines(keepends=True)
+    at = min(len(lines), 40)  # a data line in the middle (line numbers count from 1)
+    lines.insert(at, bad_line)
+    path.write_text("".join(lines))
+    assert main(["run", "--data", str(broken), "--robot", "1", "--quiet"]) == 1
+    line = one_error_line(capsys)
+    assert file in line and f"line {at + 1}" in line and expected in line
+
+
+def test_console_script(dataset_dir, tmp_path):
+    exe = Path(sys.executable).parent / "fastslam-edu"
+    assert exe.exists(), exe
+    out = tmp_path / "cs.json"
+    proc = subprocess.run(
+        [str(exe), "run", "--data", str(dataset_dir), "--robot", "1", "--particles", "5", "--quiet",
+         "--json", str(out)],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "path_rmse_m" in proc.stdout
+    assert json.loads(out.read_text())["params"]["n_particles"] == 5
+    bad = subprocess.run([str(exe), "run", "--data", str(tmp_path / "nowhere"), "--robot", "1"],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 1 and len(bad.stderr.strip().splitlines()) == 1
