@@ -34,7 +34,7 @@ What real data needs beyond the textbook (see :mod:`fastslam_edu.noise_estimatio
 noise densities per √s (independent of the odometry rate), and a gate against
 outlier measurements: a measurement is rejected when, for particles holding at
 least half of the weight, its squared Mahalanobis distance exceeds
-``gate_chi2`` (default: the 99.9 % point of χ² with 2 degrees of freedom).
+``gate_chi2`` (default: the point of χ² with 2 degrees of freedom exceeded once in a million).
 """
 
 from __future__ import annotations
@@ -52,8 +52,13 @@ from .weights import effective_sample_size, weights_from_log
 
 MODES = ("slam", "localize", "map")
 
-#: χ²₂ 99.9 % quantile: −2 ln(0.001)
+#: χ²₂ 99.9 % quantile: −2 ln(0.001) ≈ 13.8, the textbook gate for a well-modelled sensor.
 CHI2_2DOF_999 = float(-2.0 * np.log(1e-3))
+
+#: χ²₂ quantile with a tail of one in a million: −2 ln(1e-6) ≈ 27.6 (for 2 degrees of
+#: freedom the tail is exp(−d²/2)). With the inflated R of the defaults it catches only
+#: gross errors (a misread barcode, a range off by metres).
+CHI2_2DOF_1E6 = float(-2.0 * np.log(1e-6))
 
 #: Longest run of odometry steps propagated at once (bounds memory: M × L × 3 floats).
 MAX_SEGMENT = 512
@@ -83,8 +88,13 @@ class FastSLAMParams:
       ~0.2 s and turn ~10 % less than commanded). Over the 10–60 s the filter
       dead-reckons between sightings, the heading error is ~0.3 rad per minute,
       so the defaults are :math:`\\sigma_v = 0.02` m/√s and :math:`\\sigma_\\omega = 0.05` rad/√s.
-    * **Gate**: the 99.9 % point of :math:`\\chi^2_2` — with the inflated :math:`R` it
-      only catches gross errors (a misread barcode, a range off by metres).
+    * **Gate**: :math:`d^2 > 27.6`, exceeded by one good sighting in a million —
+      with the inflated :math:`R` it only catches gross errors (a misread barcode,
+      a range off by metres; Dataset 6 robot 3 has sightings at :math:`d^2 \\sim 10^5`).
+      A tighter gate (the 99.9 % point, 13.8) cost accuracy on MR.CLAM: over 10
+      seeds on the six robots with groundtruth, mean path RMSE 0.87 m against
+      0.69 m at 27.6 and 0.66 m without a gate (the floored likelihood also
+      weakens the correction of particles that are genuinely off).
     * **Resampling** when :math:`N_\\text{eff} < M/2`, the usual rule of thumb: it keeps
       the particle diversity that resampling at every step (the write-up's
       choice) throws away.
@@ -126,7 +136,7 @@ class FastSLAMParams:
     measurement_cov: np.ndarray = field(default_factory=lambda: np.diag([0.07**2, 0.02**2]))
     resampler: str = "systematic"
     resample_threshold: float = 0.5
-    gate_chi2: float | None = CHI2_2DOF_999
+    gate_chi2: float | None = CHI2_2DOF_1E6
     mode: str = "slam"
     odometry_scale: tuple[float, float] = (1.0, 1.0)
     range_std_slope: float = 0.06
