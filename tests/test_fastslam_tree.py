@@ -1,0 +1,219 @@
+"""FastSLAM with tree maps (fastslam_edu.fastslam_tree) against the array engine, on the simulator.
+
+Both filters draw the same random numbers (same propagate, same resampling)
+and apply the measurements of an instant with the same semantics, so for the
+same seed the weighted-mean path, the combined map and every particle's pose,
+log weight and landmark filters must agree. The tree filter reads and writes
+the same 2×2 EKF arithmetic through the trees, so the measured difference is
+0.0; the tolerance asked for is 1e-6 (m, rad, log weight).
+
+The tree filter applies the array engine's own update function to the
+landmarks it reads out of the trees, so what these tests check is the
+storage: reading, writing back exactly what changed, sharing after
+resampling. One test compares with the textbook loop (fastslam_loop), which
+shares no update code with either.
+
+The cases exercise resampling (sometimes / every step), the robust gate with
+injected outliers, range-dependent R, a landmark measured twice at one
+instant, and modes slam, localize and map. A different seed is caught.
+Sharing is checked by object identity: after a run the M particles hold far
+fewer distinct nodes than M separate trees would.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fastslam_edu.angles import wrap_angle
+from fastslam_edu.datasets.events import event_stream, groundtruth_at
+from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
+from fastslam_edu.fastslam_loop import run_fastslam_loop
+from fastslam_edu.fastslam_tree import TreeParticleSet, crossover_k, run_fastslam_tree, step_cost, step_particles
+from fastslam_edu.landmark_tree import count_nodes, tree_depth
+from fastslam_edu.motion import MotionNoise
+from fastslam_edu.sim import simulate_dataset
+
+TOL = 1e-6
+M = 20
+
+
+@pytest.fixture(scope="module")
+def world():
+    data = simulate_dataset(5, duration=20.0, outlier_prob=0.1)
+    log = data.robots[1]
+    return data, log, event_stream(log, data.landmark_subjects)
+
+
+def with_repeated_measurements(stream: EventStream, every: int = 3) -> EventStream:
+    """Every ``every``-th measurement step gets a second reading of its first landmark (r + 2 cm)."""
+    z, lm, offsets, steps_with = [], [], [0], 0
+    for k in range(len(stream)):
+        zk, lk = (list(a) for a in stream.measurements_at(k))
+        if zk:
+            if steps_with % every == 0:
+                zk.append(zk[0] + [0.02, 0.0])
+                lk.append(lk[0])
+            steps_with += 1
+        z += zk
+        lm += lk
+        offsets.append(offsets[-1] + len(zk))
+    return dataclasses.replace(stream, z=np.array(z, dtype=float).reshape(-1, 2),
+                               landmark=np.array(lm, dtype=np.int64), offsets=np.array(offsets, dtype=np.int64))
+
+
+def differences(a, b) -> dict:
+    """Largest differences between two results (array engine ``a``, tree filter ``b``)."""
+    pa, pb = a.particles, b.particles
+    seen = pa.seen & pb.seen
+    observed = a.observed & b.observed
+    return {
+        "seen_mismatches": int((pa.seen != pb.seen).sum() + (a.observed != b.observed).sum()),
+        "count_mismatches": int((pa.count != pb.count).sum()),  # sightings used (the gate's "young" test)
+        "path_xy": np.abs(a.pose_mean[:, :2] - b.pose_mean[:, :2]).max(),
+        "path_theta": np.abs(wrap_angle(a.pose_mean[:, 2] - b.pose_mean[:, 2])).max(),
+        "map": np.abs(a.landmarks_mean[observed] - b.landmarks_mean[observed]).max(),
+        "map_cov": np.abs(a.landmarks_cov[observed] - b.landmarks_cov[observed]).max(),
+        "poses": np.abs(pa.poses - pb.poses).max(),
+        "logw": np.abs(pa.logw - pb.logw).max(),
+        "mu": np.abs(pa.mu[seen] - pb.mu[seen]).max(),
+        "sigma": np.abs(pa.sigma[seen] - pb.sigma[seen]).max(),
+    }
+
+
+CASES = [  # (mode, resample_threshold, gate, range_std_slope, noise)
+    ("slam", 0.5, CHI2_2DOF_999, 0.06, MotionNoise(mode="control", sigma_v=0.02, sigma_omega=0.05)),
+    ("slam", 1.0, None, 0.0, MotionNoise(mode="state", sigma_xy=0.01, sigma_theta=0.02)),
+    ("localize", 0.5, CHI2_2DOF_999, 0.0, MotionNoise(mode="control", sigma_v=0.02, sigma_omega=0.05)),
+    ("map", 0.5, CHI2_2DOF_999, 0.06, MotionNoise(mode="control", sigma_v=0.02, sigma_omega=0.05)),
+]
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: f"{c[0]}-thr{c[1]}-{'gate' if c[2] else 'nogate'}-slope{c[3]}")
+def test_tree_filter_equals_array_engine(world, case):
+    data, log, stream = world
+    mode, thr, gate, slope, noise = case
+    params = FastSLAMParams(n_particles=M, motion_noise=noise, measurement_cov=np.diag([0.05**2, 0.02**2]),
+                            mode=mode, resample_threshold=thr, gate_chi2=gate, range_std_slope=slope)
+    kw = {}
+    if mode == "localize":
+        kw["landmarks"] = data.landmark_positions
+    if mode == "map":
+        kw["groundtruth_poses"] = lambda t: groundtruth_at(log, t)
+    a = run_fastslam(stream, params, 11, **kw)
+    b = run_fastslam_tree(stream, params, 11, **kw)
+    diff = differences(a, b)
+    assert max(diff.values()) < TOL, diff
+    assert (a.n_resamples, a.measurements_used, a.measurements_rejected) == \
+           (b.n_resamples, b.measurements_used, b.measurements_rejected)
+    np.testing.assert_allclose(a.ess, b.ess, rtol=1e-9)
+    if mode != "map":  # (with known poses all particles weigh the same: no resampling)
+        assert a.n_resamples > 0  # resampling, where tree sharing matters, is exercised
+    if gate is not None and mode != "map":
+        assert a.measurements_rejected > 0  # the gate acted
+    if mode == "localize":  # the known map never moves (only the sighting counts change)
+        assert np.array_equal(b.particles.mu, np.broadcast_to(data.landmark_positions, b.particles.mu.shape))
+
+
+def test_a_landmark_measured_twice_at_one_instant(world):
+    _, _, stream = world
+    twice = with_repeated_measurements(stream)
+    assert twice.n_measurements > stream.n_measurements
+    params = FastSLAMParams(n_particles=M)
+    diff = differences(run_fastslam(twice, params, 3), run_fastslam_tree(twice, params, 3))
+    assert max(diff.values()) < TOL, diff
+
+
+def test_tree_filter_equals_the_textbook_loop():
+    """An implementation that shares no update code: the per-particle loop of fastslam_loop.
+
+    Its tolerances are those of tests/test_fastslam_loop.py (the loop moves
+    the particles step by step in double precision, the engine in segments
+    with float32 cos/sin): 1e-7 m on positions, 1e-5 on log weights.
+    """
+    data = simulate_dataset(3, duration=6.0, outlier_prob=0.1)
+    stream = event_stream(data.robots[1], data.landmark_subjects)
+    params = FastSLAMParams(n_particles=6, motion_noise=MotionNoise(mode="control", sigma_v=0.01, sigma_omega=0.02),
+                            measurement_cov=np.diag([0.05**2, 0.02**2]), resample_threshold=1.0,
+                            gate_chi2=CHI2_2DOF_999)
+    b = run_fastslam_tree(stream, params, 7)
+    parts, path = run_fastslam_loop(stream, params, 7)
+    assert b.measurements_rejected > 0 and b.n_resamples > 0
+    assert np.abs(path[:, :2] - b.pose_mean[:, :2]).max() < 1e-7
+    assert np.abs(wrap_angle(path[:, 2] - b.pose_mean[:, 2])).max() < 1e-7
+    assert np.abs(np.array([p.logw for p in parts]) - b.trees.logw).max() < 1e-5
+    for p, tree in zip(parts, b.trees.trees):
+        assert sorted(p.landmarks) == tree.keys()
+        for k, (mu, sigma) in p.landmarks.items():
+            leaf = tree.get(k)
+            assert np.abs(leaf.mu - mu).max() < 1e-7 and np.abs(leaf.sigma - sigma).max() < 1e-10
+            assert leaf.count == p.count[k]
+
+
+def test_the_comparison_can_fail(world):
+    _, _, stream = world
+    params = FastSLAMParams(n_particles=M)
+    diff = differences(run_fastslam(stream, params, 11), run_fastslam_tree(stream, params, 12))
+    assert diff["path_xy"] > 1e-3 and diff["map"] > 1e-3
+
+
+def test_particles_share_their_trees_after_a_run(world):
+    data, _, stream = world
+    K = stream.n_landmarks
+    b = run_fastslam_tree(stream, FastSLAMParams(n_particles=M, resample_threshold=1.0), 0)
+    trees = b.trees.trees
+    per_tree = [count_nodes(t) for t in trees]
+    assert min(per_tree) > 0 and max(per_tree) <= 2 ** (tree_depth(K) + 1) - 1
+    distinct = count_nodes(*trees)
+    # resampled at every measurement step: the M maps share most of their nodes
+    assert distinct < 0.6 * sum(per_tree), (distinct, sum(per_tree))
+    # and the dense view of the trees is the array engine's map (checked above); here: all landmarks seen
+    assert b.particles.seen.sum(axis=1).max() == len({*stream.landmark.tolist()})
+
+
+def test_select_shares_trees_and_updates_stay_private():
+    K, n = 50, 6
+    parts = TreeParticleSet.initial(n, K, np.zeros(3))
+    parts.trees = [t.set(3, [4.0, 1.0], np.eye(2) * 0.1) for t in parts.trees]
+    children = parts.select([0, 0, 0, 5, 5, 5])
+    assert children.trees[0] is parts.trees[0] and children.trees[4] is parts.trees[5]
+    assert np.all(children.logw == 0.0)
+    z = np.array([[np.hypot(4.0, 1.0) + 0.05, np.arctan2(1.0, 4.0)]])
+    moved = step_particles(children, np.arange(n), [3], z)
+    for m in range(n):  # the inputs still hold the old landmark
+        np.testing.assert_array_equal(children.trees[m].get(3)[0], [4.0, 1.0])
+        assert moved.trees[m].get(3).mu[0] > 4.0  # the update pulled it outwards
+
+
+@pytest.mark.parametrize("K", [64, 1000])
+def test_step_cost_counts(K):
+    r = step_cost(K, n_particles=30, repeats=1, min_block_seconds=0.0)
+    d = tree_depth(K)
+    assert r["depth"] == d
+    # two updates per particle: the union of two root-to-leaf paths, sharing at least the root
+    assert 30 * (d + 2) <= r["tree_nodes_created"] <= r["tree_nodes_bound"] - 30 == 30 * (2 * d + 1)
+    # dense: select copies every particle's K means (2 floats), covariances (4) and seen flags (1 byte)
+    assert r["dense_bytes_retained"] >= 30 * K * (6 * 8 + 1)
+    assert r["tree_bytes_retained"] < 30 * 2 * (d + 1) * 200 + 30 * 2 * 500  # nodes + leaf views, no K term
+    assert r["dense_bytes_copied"] >= 30 * K * (6 * 8 + 1)
+    assert r["tree_seconds"] > 0 and r["dense_seconds"] > 0
+
+
+def test_crossover_k_interpolates_in_log_k():
+    """dense ∝ K, tree constant: log(dense/tree) = log(K / 1000) is linear in log K, so the crossing is exact."""
+    rows = [{"K": K, "dense_seconds": K * 1e-6, "tree_seconds": 1e-3} for K in (10, 100, 10_000, 100_000)]
+    assert crossover_k(rows) == pytest.approx(1000.0, rel=1e-12)
+    assert crossover_k(rows[2:]) == 10_000  # the tree wins everywhere measured
+    assert crossover_k(rows[:2]) is None  # never wins
+    with pytest.raises(ValueError, match="sorted"):
+        crossover_k(rows[::-1])
+
+
+@pytest.mark.parametrize("bad", [{"n_particles": 0}, {"x0": [0.0, np.nan, 0.0]}, {"n_landmarks": 0}])
+def test_initial_rejects_bad_input(bad):
+    kw = {"n_particles": 3, "n_landmarks": 5, "x0": np.zeros(3)} | bad
+    with pytest.raises(ValueError, match="n_particles|initial pose|landmarks"):
+        TreeParticleSet.initial(**kw)
