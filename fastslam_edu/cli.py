@@ -11,7 +11,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
 
 from .fastslam import MODES, FastSLAMParams, with_params
 

@@ -48,7 +48,7 @@ from .datasets.log import EventStream
 from .ekf import initialise_landmark, update_landmark_unchecked
 from .motion import MotionNoise, move_segment
 from .resampling import get_resampler
-from .weights import effective_sample_size, weights_from_log
+from .weights import weights_from_log
 
 MODES = ("slam", "localize", "map")
 
@@ -204,6 +204,22 @@ class ParticleSet:
     def weights(self) -> np.ndarray:
         """Normalised weights :math:`w^{[m]}`, shape (M,)."""
         return weights_from_log(self.logw)
+
+    def with_known_map(self, landmarks) -> "ParticleSet":
+        """Every particle holding the known landmarks ``(K, 2)`` (localisation), Σ = 10⁻⁶ I."""
+        self.mu[:] = landmarks
+        self.sigma[:] = np.eye(2) * 1e-6
+        self.seen[:] = True
+        self.count[:] = 1
+        return self
+
+    def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None) -> np.ndarray:
+        """Step 2 for the measurements of one instant: :func:`update_with_measurements`."""
+        return update_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2)
+
+    def to_particle_set(self) -> "ParticleSet":
+        """The set as dense arrays: itself (see the tree storage of :mod:`fastslam_edu.fastslam_tree`)."""
+        return self
 
     def select(self, indices) -> "ParticleSet":
         """Particles ``indices`` as a new set with **copied** arrays and uniform weights.
@@ -447,7 +463,8 @@ class FastSLAMResult:
     ess_t, ess : times and :math:`N_\\text{eff}` at every step that had measurements
     n_resamples, measurements_used, measurements_rejected : counts
     filter_seconds : wall time of the filter loop
-    particles : the final ParticleSet
+    particles : the final ParticleSet (dense arrays)
+    final : the final particle set as the filter stored it (a ParticleSet, or tree-backed)
     """
 
     t: np.ndarray
@@ -466,6 +483,7 @@ class FastSLAMResult:
     particles: ParticleSet
     params: FastSLAMParams
     landmark_subjects: np.ndarray
+    final: object = None
 
 
 def _segments(stream: EventStream, cut_times=()):
@@ -497,6 +515,7 @@ def run_fastslam(
     groundtruth_poses=None,
     kidnap: tuple[float, tuple[float, float, float]] | None = None,
     progress: bool = False,
+    particle_class=None,
 ) -> FastSLAMResult:
     """Run FastSLAM 1.0 over an event stream.
 
@@ -512,6 +531,11 @@ def run_fastslam(
     kidnap : ``(t_k, (x, y, θ))`` — at the first step at or after ``t_k`` every
         particle is moved to that pose (the write-up's kidnapped-robot test).
     progress : show a tqdm progress bar.
+    particle_class : how particles store their maps: :class:`ParticleSet` (dense
+        arrays, the default) or :class:`fastslam_edu.fastslam_tree.TreeParticleSet`
+        (Montemerlo's trees); anything with the same ``initial``, ``with_known_map``,
+        ``update``, ``select``, ``weights`` and ``to_particle_set``. The result's
+        ``particles`` is always dense; ``final`` is the set as stored.
     """
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
     x0 = stream.x0 if x0 is None else np.asarray(x0, dtype=float)
@@ -520,7 +544,7 @@ def run_fastslam(
     M, K, N = params.n_particles, stream.n_landmarks, len(stream)
     if N == 0:
         raise ValueError("the event stream is empty")
-    particles = ParticleSet.initial(M, K, x0)
+    particles = (ParticleSet if particle_class is None else particle_class).initial(M, K, x0)
     update_map = params.mode != "localize"
     if params.mode == "localize":
         if landmarks is None:
@@ -528,10 +552,7 @@ def run_fastslam(
         landmarks = np.asarray(landmarks, dtype=float)
         if landmarks.shape != (K, 2):
             raise ValueError(f"landmarks must have shape ({K}, 2), got {landmarks.shape}")
-        particles.mu[:] = landmarks
-        particles.sigma[:] = np.eye(2) * 1e-6
-        particles.seen[:] = True
-        particles.count[:] = 1
+        particles = particles.with_known_map(landmarks)
     if params.mode == "map" and groundtruth_poses is None:
         raise ValueError('mode="map" needs the groundtruth poses (groundtruth_poses=callable t -> (n, 3))')
 
@@ -570,8 +591,8 @@ def run_fastslam(
             pose_mean[s:last] = combined_pose(path[:, : last - s], w)
             pose_best[s:last] = path[int(np.argmax(w)), : last - s]
         if len(z):
-            ok = update_with_measurements(
-                particles, z, lm, params.measurement_covariance(z), update_map=update_map, gate_chi2=params.gate_chi2
+            ok = particles.update(
+                z, lm, params.measurement_covariance(z), update_map=update_map, gate_chi2=params.gate_chi2
             )
             used += int(ok.sum())
             rejected += int((~ok).sum())
@@ -590,6 +611,7 @@ def run_fastslam(
     if bar is not None:
         bar.close()
 
+    final, particles = particles, particles.to_particle_set()
     mu, sigma, observed = combined_map(particles)
     best = int(np.argmax(particles.logw))
     lm_best = np.where(particles.seen[best][:, None], particles.mu[best], np.nan)
@@ -610,6 +632,7 @@ def run_fastslam(
         particles=particles,
         params=params,
         landmark_subjects=np.asarray(stream.landmark_subjects),
+        final=final,
     )
 
 

@@ -38,7 +38,7 @@ from __future__ import annotations
 import gc
 import time
 import tracemalloc
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -47,11 +47,7 @@ from .fastslam import (
     FastSLAMParams,
     FastSLAMResult,
     ParticleSet,
-    _segments,
-    combined_map,
-    combined_pose,
-    propagate,
-    resample_if_needed,
+    run_fastslam,
     update_with_measurements,
 )
 from .landmark_tree import LandmarkTree, count_new_nodes, gather, set_each, tree_depth, trees_to_arrays
@@ -113,6 +109,17 @@ class TreeParticleSet:
             poses=self.poses[idx], trees=[self.trees[i] for i in idx.tolist()], logw=np.zeros(len(idx))
         )
 
+    def with_known_map(self, landmarks) -> "TreeParticleSet":
+        """Every particle holding one shared tree of the known landmarks ``(K, 2)`` (localisation)."""
+        K = len(landmarks)
+        known = LandmarkTree.from_arrays(landmarks, np.tile(np.eye(2) * 1e-6, (K, 1, 1)), count=np.ones(K, int))
+        self.trees = [known] * len(self)
+        return self
+
+    def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None) -> np.ndarray:
+        """Step 2 for the measurements of one instant: :func:`update_trees_with_measurements`."""
+        return update_trees_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2)
+
     def to_particle_set(self) -> ParticleSet:
         """The same particles as a dense :class:`~fastslam_edu.fastslam.ParticleSet` (:math:`O(MK)`)."""
         mu, sigma, seen, count = trees_to_arrays(self.trees)
@@ -170,121 +177,25 @@ class FastSLAMTreeResult(FastSLAMResult):
     made for the array engine applies); ``trees`` is the final set itself.
     """
 
-    trees: TreeParticleSet
+    trees: TreeParticleSet | None = None
 
 
 def run_fastslam_tree(
     stream: EventStream,
     params: FastSLAMParams = FastSLAMParams(),
     rng: np.random.Generator | int | None = 0,
-    *,
-    x0=None,
-    landmarks=None,
-    groundtruth_poses=None,
-    kidnap: tuple[float, tuple[float, float, float]] | None = None,
+    **options,
 ) -> FastSLAMTreeResult:
     """Run FastSLAM 1.0 with tree maps over an event stream.
 
-    Same parameters and same result as :func:`fastslam_edu.fastslam.run_fastslam`
-    (for the same seed, to rounding); ``filter_seconds`` is this filter's time.
-
-    Parameters
-    ----------
-    stream : EventStream
-    params : FastSLAMParams
-        ``mode`` ``"slam"``, ``"localize"`` or ``"map"``.
-    rng : numpy.random.Generator or int seed
-    x0 : (3,) initial pose; default ``stream.x0``.
-    landmarks : (K, 2) known landmark positions, needed for ``mode="localize"``
-        (one tree holding them, shared by every particle and never changed).
-    groundtruth_poses : callable ``t -> (n, 3)``, needed for ``mode="map"``.
-    kidnap : ``(t_k, (x, y, θ))``: every particle moved there at the first step at or after ``t_k``.
+    The array engine's run loop (:func:`fastslam_edu.fastslam.run_fastslam`, whose
+    keyword options it takes) with particles that store their maps in trees
+    (:class:`TreeParticleSet`): the same random numbers, the same result to
+    rounding; ``filter_seconds`` is this filter's time and ``trees`` the final
+    tree-backed set.
     """
-    rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
-    x0 = stream.x0 if x0 is None else np.asarray(x0, dtype=float)
-    if x0 is None:
-        raise ValueError("no initial pose: the stream has no groundtruth; pass x0=(x, y, theta)")
-    M, K, N = params.n_particles, stream.n_landmarks, len(stream)
-    if N == 0:
-        raise ValueError("the event stream is empty")
-    particles = TreeParticleSet.initial(M, K, x0)
-    update_map = params.mode != "localize"
-    if params.mode == "localize":
-        if landmarks is None:
-            raise ValueError('mode="localize" needs the known landmark positions (landmarks=...)')
-        landmarks = np.asarray(landmarks, dtype=float)
-        if landmarks.shape != (K, 2):
-            raise ValueError(f"landmarks must have shape ({K}, 2), got {landmarks.shape}")
-        known = LandmarkTree.from_arrays(landmarks, np.tile(np.eye(2) * 1e-6, (K, 1, 1)), count=np.ones(K, int))
-        particles.trees = [known] * M
-    if params.mode == "map" and groundtruth_poses is None:
-        raise ValueError('mode="map" needs the groundtruth poses (groundtruth_poses=callable t -> (n, 3))')
-
-    pose_mean = np.empty((N, 3))
-    pose_best = np.empty((N, 3))
-    ess_t, ess = [], []
-    n_resamples = used = rejected = 0
-    kidnap_step = None if kidnap is None else int(np.searchsorted(stream.t, kidnap[0], side="left"))
-    t_start = time.perf_counter()
-    u_all = np.asarray(stream.u, dtype=float) * np.asarray(params.odometry_scale, dtype=float)
-    dt_all = np.asarray(stream.dt, dtype=float)
-    if not (np.isfinite(u_all).all() and np.isfinite(dt_all).all()) or (dt_all < 0).any():
-        raise ValueError("the event stream has non-finite commands or negative time steps")
-    w = particles.weights
-    for s, e in _segments(stream, () if kidnap is None else (kidnap[0],)):
-        if params.mode == "map":
-            path = np.broadcast_to(groundtruth_poses(stream.t[s : e + 1]), (M, e - s + 1, 3))
-            particles.poses = np.array(path[:, -1])
-        else:  # propagate() only touches .poses: the same draws as the array engine
-            path = propagate(particles, u_all[s : e + 1], dt_all[s : e + 1], params.motion_noise, rng)
-        if kidnap_step is not None and s <= kidnap_step <= e:  # segments end at the kidnap step
-            particles.poses[:] = np.asarray(kidnap[1], dtype=float)
-            path = np.array(path)
-            path[:, kidnap_step - s :] = particles.poses[:, None, :]
-        z, lm = stream.measurements_at(e)
-        last = e if len(z) else e + 1  # a measurement step's estimate is taken after the update
-        if last > s:
-            pose_mean[s:last] = combined_pose(path[:, : last - s], w)
-            pose_best[s:last] = path[int(np.argmax(w)), : last - s]
-        if len(z):
-            ok = update_trees_with_measurements(
-                particles, z, lm, params.measurement_covariance(z), update_map=update_map, gate_chi2=params.gate_chi2
-            )
-            used += int(ok.sum())
-            rejected += int((~ok).sum())
-            # resample_if_needed() uses .weights, len() and .select(): on trees, select shares them
-            particles, n_eff, did = resample_if_needed(particles, params.resampler, params.resample_threshold, rng)
-            n_resamples += did
-            ess_t.append(stream.t[e])
-            ess.append(n_eff)
-            w = particles.weights
-            pose_mean[e] = combined_pose(particles.poses, w)
-            pose_best[e] = particles.poses[int(np.argmax(w))]
-    filter_seconds = time.perf_counter() - t_start
-
-    dense = particles.to_particle_set()
-    mu, sigma, observed = combined_map(dense)
-    best = int(np.argmax(dense.logw))
-    lm_best = np.where(dense.seen[best][:, None], dense.mu[best], np.nan)
-    return FastSLAMTreeResult(
-        t=np.asarray(stream.t, dtype=float),
-        pose_mean=pose_mean,
-        pose_best=pose_best,
-        landmarks_mean=mu,
-        landmarks_cov=sigma,
-        observed=observed,
-        landmarks_best=lm_best,
-        ess_t=np.asarray(ess_t),
-        ess=np.asarray(ess),
-        n_resamples=n_resamples,
-        measurements_used=int(used),
-        measurements_rejected=int(rejected),
-        filter_seconds=filter_seconds,
-        particles=dense,
-        params=params,
-        landmark_subjects=np.asarray(stream.landmark_subjects),
-        trees=particles,
-    )
+    result = run_fastslam(stream, params, rng, particle_class=TreeParticleSet, **options)
+    return FastSLAMTreeResult(**{f.name: getattr(result, f.name) for f in fields(result)}, trees=result.final)
 
 
 # ---------------------------------------------------------------- the cost of one step, measured

@@ -1,0 +1,728 @@
+"""Readers for 2D laser logs: CARMEN (Intel, FR079), the Intel JSON files, THOR ``.mat`` files.
+
+Every reader returns arrays in the package's conventions: times in seconds,
+poses ``(x, y, θ)`` [m, m, rad] in the world, beam angles [rad] in the sensor
+frame (0 straight ahead, positive to the left), ranges [m].
+
+* :func:`read_carmen` — CARMEN text logs (``PARAM``, ``ODOM``, ``FLASER``), plain
+  or gzip, e.g. the GMapping-corrected logs ``intel.gfs.log.gz`` and
+  ``freiburg-079-corrected.log.gz``. In those the pose stored with each scan is
+  GMapping's *corrected* pose; :func:`odometry_increments` recovers the *raw*
+  odometry between scans from the ``ODOM`` lines, and
+  :func:`~fastslam_edu.se2.compose_increments` rebuilds the raw-odometry path.
+* :func:`read_intel_json` — the two JSON versions of the 910 Intel scans
+  (raw-odometry poses or corrected poses); :func:`read_relations` — the
+  Kümmerle et al. (2009) relation files.
+* :func:`read_thor_lidar`, :func:`read_thor_joints`, :func:`write_thor_lidar` —
+  the THOR humanoid's MATLAB files (both variants that circulate).
+
+"No return" readings (CARMEN writes 81.83 or 81.91 m, beyond the SICK's 80 m)
+become ``np.nan`` in :attr:`LaserLog.ranges`; :meth:`LaserLog.beams` gives a
+scan's valid beams, ready for :func:`fastslam_edu.grid.scan_endpoints`.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import scipy.io
+
+from fastslam_edu.angles import wrap_angle
+from fastslam_edu.se2 import compose_increments, path_increments, relative
+
+__all__ = [
+    "LaserLog",
+    "ThorLidar",
+    "read_carmen",
+    "odometry_increments",
+    "compose_increments",
+    "read_intel_json",
+    "read_relations",
+    "read_thor_lidar",
+    "read_thor_joints",
+    "write_thor_lidar",
+    "carmen_angles",
+    "thor_angles",
+    "DEFAULT_NO_RETURN",
+    "LASER_SOURCES",
+    "laser_file",
+]
+
+#: Ranges at or beyond this [m] are "no return" when a log has no ``robot_front_laser_max``
+#: PARAM: SICK LMS scanners reach 80 m and CARMEN logs write 81.83 / 81.91 m for "nothing seen".
+DEFAULT_NO_RETURN = 80.0
+
+
+#: Where each 2D laser file under the data folder comes from (see the READMEs next to the files).
+LASER_SOURCES = {
+    "fr079/freiburg-079-corrected.log.gz": (
+        "https://raw.githubusercontent.com/acschaefer/ple/cfcb5a7f12a793b616357381a688cfcc26eed347/"
+        "data/carmen/freiburg-079-corrected.log.gz"
+    ),
+    "fr079/fr079.relations": (
+        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
+        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/RawData/fr079.relations"
+    ),
+    "intel/intel.gfs.log.gz": (
+        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
+        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/RawData/intel.gfs.log (gzip it)"
+    ),
+    "intel/intel_gfs.json.gz": (
+        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
+        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/PreprocessedData/intel_gfs (gzip it)"
+    ),
+    "intel/intel_corrected_log.json.gz": (
+        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
+        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/PreprocessedData/intel_corrected_log (gzip it)"
+    ),
+    "intel/intel.relations": (
+        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
+        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/RawData/intel.relations"
+    ),
+    "thor/train_joint0.mat": (
+        "https://raw.githubusercontent.com/abhikandoi2000/particle-filter-slam/"
+        "8e3a9f6b8f8a450822c514e5ae0e82b4828589e3/joint/train_joint0.mat"
+    ),
+}
+
+
+def laser_file(relpath: str) -> Path:
+    """Path of a laser data file under the data folder, e.g. ``laser_file("fr079/freiburg-079-corrected.log.gz")``.
+
+    Looks in :func:`fastslam_edu.datasets.data_root` (``$FASTSLAM_EDU_DATA``).
+    A missing file raises FileNotFoundError saying where it was looked for and
+    where to download it from (:data:`LASER_SOURCES`).
+    """
+    from fastslam_edu.datasets import ENV_VAR, data_root
+
+    path = data_root() / relpath
+    if not path.is_file():
+        source = LASER_SOURCES.get(relpath, "see the README of its folder")
+        raise FileNotFoundError(
+            f"{relpath} not found at {path}. Set {ENV_VAR} to the folder that holds '{relpath}', "
+            f"or download it from {source} and save it as {path}."
+        )
+    return path
+
+
+# --------------------------------------------------------------------------- the log structure
+
+
+@dataclass
+class LaserLog:
+    """A 2D laser log: one row per scan.
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Scan times [s] (as in the file: relative times for the CARMEN logs,
+        Unix times for the Intel JSON files).
+    ranges : ndarray, shape (N, B)
+        Ranges [m]; ``np.nan`` where the sensor saw nothing ("no return":
+        readings ``≥ max_range`` or ``≤ 0``).
+    angles : ndarray, shape (B,)
+        Beam angles [rad] in the sensor frame, increasing right to left.
+    poses : ndarray, shape (N, 3)
+        The pose stored with each scan, ``(x, y, θ)`` [m, m, rad]. In the
+        GMapping-corrected logs (``*.gfs.log``, ``*-corrected.log``,
+        ``intel_corrected_log.json``) this is GMapping's corrected pose; in
+        ``intel_gfs.json`` it is the raw odometry.
+    odometry : ndarray, shape (N, 3), or None
+        The raw odometry pose of each scan where the file holds it (raw CARMEN
+        logs; ``intel_gfs.json``), else None — then use
+        :func:`odometry_increments`.
+    source : str
+        Where it came from (used in messages).
+    max_range : float
+        Readings at or beyond this [m] were turned into ``np.nan``.
+    last_odom : ndarray, shape (N, 3), or None
+        CARMEN only: the last ``ODOM`` pose before each scan, in file order
+        (``np.nan`` rows for scans with no ``ODOM`` before them).
+    first_odom : ndarray, shape (3,), or None
+        CARMEN only: the first ``ODOM`` pose of the file.
+    params : dict[str, str]
+        CARMEN ``PARAM`` name → value (as text).
+    counts : dict[str, int]
+        Messages per type in the file, including those skipped (e.g. ``NEFF``).
+    """
+
+    t: np.ndarray
+    ranges: np.ndarray
+    angles: np.ndarray
+    poses: np.ndarray
+    odometry: np.ndarray | None
+    source: str
+    max_range: float
+    last_odom: np.ndarray | None = None
+    first_odom: np.ndarray | None = None
+    params: dict = field(default_factory=dict)
+    counts: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n, b = np.shape(self.ranges) if np.ndim(self.ranges) == 2 else (None, None)
+        if n is None:
+            raise ValueError(f"LaserLog({self.source}): ranges must be (N, B), got shape {np.shape(self.ranges)}")
+        checks = [("t", self.t, (n,)), ("angles", self.angles, (b,)), ("poses", self.poses, (n, 3))]
+        if self.odometry is not None:
+            checks.append(("odometry", self.odometry, (n, 3)))
+        if self.last_odom is not None:
+            checks.append(("last_odom", self.last_odom, (n, 3)))
+        for name, a, shape in checks:
+            if np.shape(a) != shape:
+                raise ValueError(f"LaserLog({self.source}): {name} must have shape {shape}, got {np.shape(a)}")
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def beams(self, k: int, *, min_range: float = 0.0, max_range: float | None = None):
+        """Ranges and angles of the valid beams of scan ``k``.
+
+        Drops "no return" beams (NaN) and, optionally, beams shorter than
+        ``min_range`` or longer than ``max_range`` [m].
+
+        Returns
+        -------
+        ranges, angles : ndarray, shape (B_k,) each
+        """
+        r = self.ranges[k]
+        keep = np.isfinite(r)
+        keep[keep] &= r[keep] >= min_range
+        if max_range is not None:
+            keep[keep] &= r[keep] <= max_range
+        return r[keep], self.angles[keep]
+
+
+def carmen_angles(n: int, step: float | None = None) -> np.ndarray:
+    """Beam angles of an ``n``-beam CARMEN front laser: ``−π/2 + i·step``, ``i = 0 … n−1``.
+
+    ``step`` defaults to ``π / n`` (``n`` beams over 180°, right to left): 1° for
+    the 180-beam Intel log, 0.5° for the 360-beam FR079 log.
+    """
+    if step is None:
+        step = math.pi / n
+    return -math.pi / 2 + step * np.arange(n)
+
+
+# --------------------------------------------------------------------------- CARMEN
+
+
+def _open_text(path: Path):
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.suffix == ".gz":
+        return gzip.open(path, "rt", encoding="ascii", errors="replace")
+    return open(path, encoding="ascii", errors="replace")
+
+
+def _floats(tokens, path, lineno, what) -> np.ndarray:
+    try:
+        return np.array([float(v) for v in tokens], dtype=float)
+    except ValueError as exc:
+        raise ValueError(f"{path}:{lineno}: non-numeric value in {what}: {exc}") from None
+
+
+def read_carmen(path, *, no_return: float | None = None) -> LaserLog:
+    """Read a CARMEN laser log (plain text or ``.gz``).
+
+    Messages read (one per line, fields separated by spaces):
+
+    * ``PARAM name value …`` — kept in :attr:`LaserLog.params`;
+    * ``ODOM x y θ tv rv accel ipc_t host logger_t`` — kept as
+      :attr:`LaserLog.last_odom` (the last one before each scan);
+    * ``FLASER n r_1 … r_n x y θ odom_x odom_y odom_θ ipc_t host logger_t`` — one scan.
+
+    Everything else (``NEFF``, ``SYNC``, ``RLASER``, comments) is skipped and
+    counted in :attr:`LaserLog.counts`.
+
+    Conventions: beam ``i`` is at ``−π/2 + i·step`` with ``step`` from the PARAM
+    ``laser_front_laser_resolution`` [deg] if present, else ``π/n``
+    (:func:`carmen_angles`). Readings ``≥ no_return`` (default: the PARAM
+    ``robot_front_laser_max`` if present, else :data:`DEFAULT_NO_RETURN` = 80 m)
+    or ``≤ 0`` become ``np.nan``. The scan time is the logger timestamp (last
+    field). :attr:`LaserLog.poses` is the ``x y θ`` triple; if the
+    ``odom_*`` triple differs from it anywhere (a raw log) it becomes
+    :attr:`LaserLog.odometry`, else (a corrected log, where both are GMapping's
+    pose) ``odometry`` is None.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        Naming file and line, for a short or non-numeric ``FLASER``/``ODOM``
+        line, a non-finite pose, scans of different lengths, or no scan at all.
+    """
+    path = Path(path)
+    params: dict[str, str] = {}
+    counts: dict[str, int] = {}
+    t, ranges, poses, odoms, last_odom = [], [], [], [], []
+    first_odom = None
+    current_odom = np.full(3, np.nan)
+    n_beams = None
+    with _open_text(path) as f:
+        for lineno, line in enumerate(f, start=1):
+            tok = line.split()
+            if not tok:
+                continue
+            kind = tok[0] if not tok[0].startswith("#") else "#"
+            counts[kind] = counts.get(kind, 0) + 1
+            if kind == "PARAM":
+                if len(tok) >= 3:
+                    params[tok[1]] = tok[2]
+            elif kind == "ODOM":
+                if len(tok) < 4:
+                    raise ValueError(f"{path}:{lineno}: ODOM line has {len(tok)} fields, expected at least 4 (ODOM x y θ …)")
+                pose = _floats(tok[1:4], path, lineno, "ODOM pose")
+                if not np.isfinite(pose).all():
+                    raise ValueError(f"{path}:{lineno}: non-finite ODOM pose {pose.tolist()}")
+                current_odom = pose
+                if first_odom is None:
+                    first_odom = pose
+            elif kind == "FLASER":
+                try:
+                    n = int(tok[1])
+                except (IndexError, ValueError):
+                    raise ValueError(f"{path}:{lineno}: FLASER line must start with the beam count, got {tok[1:2]}") from None
+                if n < 1 or len(tok) < n + 9:
+                    raise ValueError(
+                        f"{path}:{lineno}: short FLASER line: {len(tok)} fields for n = {n} beams, expected "
+                        f"{n + 11} (FLASER n r_1…r_n x y θ odom_x odom_y odom_θ ipc_t host logger_t)"
+                    )
+                if n_beams is None:
+                    n_beams = n
+                elif n != n_beams:
+                    raise ValueError(f"{path}:{lineno}: FLASER with {n} beams after scans of {n_beams} beams")
+                r = _floats(tok[2 : 2 + n], path, lineno, "FLASER ranges")
+                both = _floats(tok[2 + n : 8 + n], path, lineno, "FLASER pose")
+                if not np.isfinite(both).all():
+                    raise ValueError(f"{path}:{lineno}: non-finite FLASER pose {both.tolist()}")
+                stamp = tok[-1] if len(tok) >= n + 11 else tok[8 + n]
+                t.append(_floats([stamp], path, lineno, "FLASER timestamp")[0])
+                ranges.append(r)
+                poses.append(both[:3])
+                odoms.append(both[3:])
+                last_odom.append(current_odom)
+    if not t:
+        raise ValueError(f"{path}: no FLASER line (counted messages: {counts})")
+    if no_return is None:
+        no_return = float(params["robot_front_laser_max"]) if "robot_front_laser_max" in params else DEFAULT_NO_RETURN
+    step = math.radians(float(params["laser_front_laser_resolution"])) if "laser_front_laser_resolution" in params else None
+    ranges = np.array(ranges)
+    ranges[~(np.isfinite(ranges) & (ranges > 0) & (ranges < no_return))] = np.nan
+    poses, odoms = np.array(poses), np.array(odoms)
+    poses[:, 2] = wrap_angle(poses[:, 2])
+    odometry = None if np.array_equal(poses[:, :2], odoms[:, :2]) and np.allclose(
+        wrap_angle(poses[:, 2] - odoms[:, 2]), 0.0, atol=1e-12
+    ) else odoms
+    return LaserLog(
+        t=np.array(t), ranges=ranges, angles=carmen_angles(n_beams, step), poses=poses, odometry=odometry,
+        source=str(path), max_range=float(no_return), last_odom=np.array(last_odom),
+        first_odom=first_odom, params=params, counts=counts,
+    )
+
+
+def odometry_increments(log: LaserLog) -> np.ndarray:
+    """Raw odometry increments ``u_k`` between consecutive scans, in the robot frame.
+
+    * If the log holds raw odometry poses ``o_k`` (:attr:`LaserLog.odometry`):
+      ``u_k = o_{k−1}⁻¹ ⊕ o_k``.
+    * Else, for a GMapping-corrected CARMEN log: every ``ODOM`` line there is
+      the last corrected pose ``x_{k−1}`` composed with the raw odometry since
+      that scan, so with ``ō_k`` the last ``ODOM`` before scan ``k``
+      (:attr:`LaserLog.last_odom`)::
+
+          u_k = x_{k−1}⁻¹ ⊕ ō_k
+
+    Row 0 holds ``u_0``: the motion from the file's first ``ODOM`` to scan 0
+    (``ō_0`` relative to :attr:`LaserLog.first_odom`), or zeros when unknown
+    (no ``ODOM`` before the first scan, or a log with odometry poses).
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        ``compose_increments(log.poses[0], u[1:])`` is then the raw-odometry
+        path started at the first corrected pose.
+
+    Raises
+    ------
+    ValueError
+        If the log has neither odometry poses nor ``ODOM`` lines before a scan ``k ≥ 1``.
+    """
+    n = len(log)
+    u = np.zeros((n, 3))
+    if log.odometry is not None:
+        if n > 1:
+            u[1:] = path_increments(log.odometry)
+        return u
+    if log.last_odom is None:
+        raise ValueError(f"odometry_increments: {log.source} holds neither odometry poses nor ODOM lines")
+    missing = ~np.isfinite(log.last_odom[1:]).all(axis=1)
+    if missing.any():
+        k = int(np.argmax(missing)) + 1
+        raise ValueError(f"odometry_increments: {log.source}: no ODOM line before scan {k}")
+    if n > 1:
+        u[1:] = relative(log.poses[:-1], log.last_odom[1:])
+    if log.first_odom is not None and np.isfinite(log.last_odom[0]).all():
+        u[0] = relative(log.first_odom, log.last_odom[0])
+    return u
+
+
+# --------------------------------------------------------------------------- Intel JSON, relations
+
+
+def read_intel_json(path, *, kind: str | None = None, no_return: float = DEFAULT_NO_RETURN) -> LaserLog:
+    """Read ``intel_gfs.json.gz`` or ``intel_corrected_log.json.gz`` (910 Intel scans).
+
+    Structure: ``{"map": {"<Unix time>": {"range": [180 floats], "x", "y", "theta"}, …}}``,
+    read in key order.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.json`` or ``.json.gz``.
+    kind : {"odometry", "corrected"}, optional
+        What the poses are. ``"odometry"`` (``intel_gfs``): raw wheel odometry,
+        stored as both :attr:`~LaserLog.poses` and :attr:`~LaserLog.odometry`.
+        ``"corrected"`` (``intel_corrected_log``): GMapping's poses, odometry None.
+        Default: guessed from the file name (``gfs`` → odometry, ``corrected`` → corrected).
+    no_return : float
+        Readings ``≥`` this [m] become ``np.nan`` (the file writes 81.83 m).
+    """
+    path = Path(path)
+    if kind is None:
+        name = path.name.lower()
+        kind = "corrected" if "corrected" in name else "odometry" if "gfs" in name else None
+        if kind is None:
+            raise ValueError(f"read_intel_json: {path}: cannot tell the pose kind from the name; pass kind=")
+    if kind not in ("odometry", "corrected"):
+        raise ValueError(f"read_intel_json: kind must be 'odometry' or 'corrected', got {kind!r}")
+    with _open_text(path) as f:
+        try:
+            doc = json.load(f)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("map"), dict) or not doc["map"]:
+        raise ValueError(f"{path}: expected a JSON object {{'map': {{time: scan, …}}}} with at least one scan")
+    t, ranges, poses = [], [], []
+    for key, scan in doc["map"].items():
+        try:
+            t.append(float(key))
+            ranges.append([float(v) for v in scan["range"]])
+            poses.append([float(scan["x"]), float(scan["y"]), float(scan["theta"])])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: scan {key!r}: malformed entry ({exc!r})") from None
+    lengths = {len(r) for r in ranges}
+    if len(lengths) != 1:
+        raise ValueError(f"{path}: scans have different numbers of beams {sorted(lengths)}")
+    poses = np.array(poses)
+    if not np.isfinite(poses).all():
+        i = int(np.argwhere(~np.isfinite(poses))[0, 0])
+        raise ValueError(f"{path}: scan {list(doc['map'])[i]!r}: non-finite pose {poses[i].tolist()}")
+    ranges = np.array(ranges)
+    ranges[~(np.isfinite(ranges) & (ranges > 0) & (ranges < no_return))] = np.nan
+    return LaserLog(
+        t=np.array(t), ranges=ranges, angles=carmen_angles(ranges.shape[1]), poses=poses,
+        odometry=poses.copy() if kind == "odometry" else None, source=str(path), max_range=float(no_return),
+    )
+
+
+RELATION_COLUMNS = ["t1", "t2", "x", "y", "z", "roll", "pitch", "yaw"]
+
+
+def read_relations(path) -> pd.DataFrame:
+    """Read a Kümmerle et al. (2009) relations file.
+
+    Each line: ``t1 t2 x y z roll pitch yaw`` — the pose of the robot at time
+    ``t2`` in the frame of the robot at ``t1`` [s, m, rad].
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``t1, t2, x, y, z, roll, pitch, yaw`` (float), one row per line.
+    """
+    path = Path(path)
+    rows = []
+    with _open_text(path) as f:
+        for lineno, line in enumerate(f, start=1):
+            tok = line.split()
+            if not tok or tok[0].startswith("#"):
+                continue
+            if len(tok) != 8:
+                raise ValueError(f"{path}:{lineno}: expected 8 fields (t1 t2 x y z roll pitch yaw), got {len(tok)}")
+            vals = _floats(tok, path, lineno, "relation")
+            if not np.isfinite(vals).all():
+                raise ValueError(f"{path}:{lineno}: non-finite value in relation {vals.tolist()}")
+            rows.append(vals)
+    return pd.DataFrame(np.array(rows).reshape(-1, 8), columns=RELATION_COLUMNS)
+
+
+# --------------------------------------------------------------------------- THOR
+
+
+def thor_angles(n: int = 1081) -> np.ndarray:
+    """THOR's Hokuyo UTM-30LX beam angles: −135° … +135° in steps of 0.25° (``n`` = 1081)."""
+    return np.radians(-135.0 + 0.25 * np.arange(n))
+
+
+@dataclass
+class ThorLidar:
+    """A THOR LiDAR log (one row per scan), as read from ``train_lidar*.mat``.
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Unix times [s].
+    ranges : ndarray, shape (N, 1081)
+        Ranges [m] **as stored** (not filtered: keep 0.1–30 m before mapping,
+        see :meth:`valid`).
+    angles : ndarray, shape (1081,)
+        −135° … +135° in 0.25° steps [rad] (:func:`thor_angles`).
+    pose : ndarray (N, 3) or None
+        Variant 1 (Penn 2018): odometry ``(x, y, yaw)`` [m, m, rad] as stored
+        (public loaders subtract the first yaw).
+    delta_pose : ndarray (N, 3) or None
+        Variant 2 (UCSD 2020), or variant 1 when present: ``(dx, dy, dyaw)``
+        since the previous scan, in the world frame.
+    rpy : ndarray (N, 3) or None
+        Variant 1: body roll, pitch, yaw from the IMU [rad].
+    res : float or None
+        Variant 1: angular resolution stored in the file [rad].
+    variant : int
+        1 or 2.
+    source : str
+    min_range, max_range : float
+        Valid range interval of the sensor [m] (0.1, 30).
+    """
+
+    t: np.ndarray
+    ranges: np.ndarray
+    angles: np.ndarray
+    pose: np.ndarray | None
+    delta_pose: np.ndarray | None
+    rpy: np.ndarray | None
+    res: float | None
+    variant: int
+    source: str = ""
+    min_range: float = 0.1
+    max_range: float = 30.0
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def valid(self) -> np.ndarray:
+        """Mask (N, B) of readings inside ``[min_range, max_range]``."""
+        r = self.ranges
+        return np.isfinite(r) & (r >= self.min_range) & (r <= self.max_range)
+
+    def odometry_poses(self) -> np.ndarray:
+        """Odometry pose per scan ``(x, y, yaw)``, (N, 3).
+
+        Variant 1: :attr:`pose` (yaw wrapped). Variant 2: the running sum of the
+        world-frame ``delta_pose`` from ``(0, 0, 0)``: ``x_k = Σ_{j≤k} Δ_j``.
+        """
+        if self.pose is not None:
+            out = self.pose.copy()
+        else:
+            out = np.cumsum(self.delta_pose, axis=0)
+        out[:, 2] = wrap_angle(out[:, 2])
+        return out
+
+
+_THOR_V1_FIELDS = ("t", "pose", "res", "rpy", "scan")
+
+
+def _row(value, n: int | None, what: str, where: str) -> np.ndarray:
+    a = np.asarray(value, dtype=float).ravel()
+    if n is not None and a.size != n:
+        raise ValueError(f"{where}: field {what!r} has {a.size} values, expected {n}")
+    return a
+
+
+def read_thor_lidar(path) -> ThorLidar:
+    """Read a THOR LiDAR ``.mat`` file (either variant of the THOR README).
+
+    Layout: ``loadmat(path)['lidar']`` is a 1 × N cell array whose element
+    ``i`` holds a 1 × 1 struct ``s = d['lidar'][0][i][0][0]``.
+
+    * Variant 1 (Penn ESE 650, 2018): fields ``t``, optionally ``delta_pose``,
+      ``pose`` (1×3), ``res``, ``rpy`` (1×3), ``scan`` (1×1081). When the field
+      names are not these, the fields are read by position from the end, as
+      the public loaders do (``pose`` = n−4, ``res`` = n−3, ``rpy`` = n−2, ``scan`` = n−1).
+    * Variant 2 (UCSD ECE 276A, 2020): fields ``t``, ``scan``, ``delta_pose`` (1×3).
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Missing file; no ``lidar`` variable; a struct with unexpected fields or
+        sizes (naming the scan index); scans of different lengths.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        d = scipy.io.loadmat(path)
+    except Exception as exc:  # scipy raises several types for corrupt files
+        raise ValueError(f"{path}: not a readable MATLAB file ({exc})") from None
+    if "lidar" not in d:
+        raise ValueError(f"{path}: no variable 'lidar' (found {sorted(k for k in d if not k.startswith('__'))})")
+    cells = d["lidar"]
+    if cells.dtype != object or cells.ndim != 2 or cells.shape[0] != 1 or cells.shape[1] == 0:
+        raise ValueError(f"{path}: 'lidar' must be a non-empty 1 × N cell array, got {cells.dtype} {cells.shape}")
+    t, scans, pose, dpose, rpy, res = [], [], [], [], [], []
+    variant = None
+    for i in range(cells.shape[1]):
+        where = f"{path}: lidar{{{i + 1}}}"
+        try:
+            s = cells[0][i][0][0]
+            names = s.dtype.names
+        except (IndexError, TypeError, AttributeError):
+            raise ValueError(f"{where}: not a 1 × 1 struct") from None
+        if names is None:
+            raise ValueError(f"{where}: not a struct")
+        if set(names) == {"t", "scan", "delta_pose"}:
+            v = 2
+            get = {k: s[k] for k in names}
+        elif set(names) >= set(_THOR_V1_FIELDS):
+            v = 1
+            get = {k: s[k] for k in names}
+        elif len(names) in (5, 6):  # variant 1 with other field names: by position from the end
+            v = 1
+            k = len(names)
+            get = {"t": s[0], "pose": s[k - 4], "res": s[k - 3], "rpy": s[k - 2], "scan": s[k - 1]}
+            if k == 6:
+                get["delta_pose"] = s[1]
+        else:
+            raise ValueError(
+                f"{where}: unknown struct fields {names} (expected t, [delta_pose,] pose, res, rpy, scan "
+                "or t, scan, delta_pose)"
+            )
+        if variant is None:
+            variant = v
+        elif v != variant:
+            raise ValueError(f"{where}: variant-{v} struct in a variant-{variant} file")
+        t.append(_row(get["t"], 1, "t", where)[0])
+        scan = _row(get["scan"], None, "scan", where)
+        if scans and scan.size != scans[0].size:
+            raise ValueError(f"{where}: scan has {scan.size} ranges, earlier scans {scans[0].size}")
+        scans.append(scan)
+        if v == 1:
+            pose.append(_row(get["pose"], 3, "pose", where))
+            res.append(_row(get["res"], 1, "res", where)[0])
+            rpy.append(_row(get["rpy"], 3, "rpy", where))
+        if "delta_pose" in get:
+            dpose.append(_row(get["delta_pose"], 3, "delta_pose", where))
+    t = np.array(t)
+    for name, arr in [("t", t), ("pose", pose), ("delta_pose", dpose)]:
+        if len(arr) and not np.isfinite(np.asarray(arr)).all():
+            i = int(np.argwhere(~np.isfinite(np.asarray(arr)))[0, 0])
+            raise ValueError(f"{path}: lidar{{{i + 1}}}: non-finite {name}")
+    if dpose and len(dpose) != len(t):
+        raise ValueError(f"{path}: delta_pose present in only {len(dpose)} of {len(t)} scans")
+    ranges = np.array(scans)
+    return ThorLidar(
+        t=t, ranges=ranges, angles=thor_angles(ranges.shape[1]),
+        pose=np.array(pose) if pose else None, delta_pose=np.array(dpose) if dpose else None,
+        rpy=np.array(rpy) if rpy else None, res=float(res[0]) if res else None, variant=variant, source=str(path),
+    )
+
+
+def read_thor_joints(path):
+    """Read a THOR joint file: times and the two head joints.
+
+    Keys used: ``ts`` (1, n) Unix time [s] and ``head_angles`` (2, n) [rad],
+    row 0 = neck (yaw), row 1 = head (pitch). Angles are returned as stored
+    (some public code negates them; the THOR README's geometry uses them as stored).
+
+    Returns
+    -------
+    t, neck, head : ndarray, shape (n,) each
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        d = scipy.io.loadmat(path)
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable MATLAB file ({exc})") from None
+    for key in ("ts", "head_angles"):
+        if key not in d:
+            raise ValueError(f"{path}: no variable {key!r} (found {sorted(k for k in d if not k.startswith('__'))})")
+    t = np.asarray(d["ts"], dtype=float).ravel()
+    h = np.asarray(d["head_angles"], dtype=float)
+    if h.ndim != 2 or h.shape != (2, t.size):
+        raise ValueError(f"{path}: head_angles must be (2, {t.size}) like ts, got {h.shape}")
+    if not (np.isfinite(t).all() and np.isfinite(h).all()):
+        raise ValueError(f"{path}: non-finite values in ts or head_angles")
+    return t, h[0].copy(), h[1].copy()
+
+
+def write_thor_lidar(
+    path, t, scans, pose=None, delta_pose=None, rpy=None, *, variant: int = 1, res: float | None = None
+) -> None:
+    """Write a THOR LiDAR ``.mat`` file in the exact layout of :func:`read_thor_lidar`.
+
+    ``lidar`` is saved as a 1 × N cell array (an object array of dicts: scipy
+    writes each dict as a 1 × 1 struct, fields in insertion order), so that
+    ``loadmat(path)['lidar'][0][i][0][0]`` is the struct of scan ``i``.
+
+    Variant 1 fields: ``t``, [``delta_pose`` if given], ``pose``, ``res``,
+    ``rpy``, ``scan`` (``pose`` required; ``rpy`` zeros and ``res`` 0.25° if not
+    given). Variant 2 fields: ``t``, ``scan``, ``delta_pose`` (required).
+
+    Parameters
+    ----------
+    path : str or Path
+    t : array_like, shape (N,)
+    scans : array_like, shape (N, B)
+    pose, delta_pose, rpy : array_like, shape (N, 3), optional
+    variant : {1, 2}
+    res : float, optional
+        Angular resolution [rad] for variant 1.
+    """
+    t = np.asarray(t, dtype=float).ravel()
+    scans = np.asarray(scans, dtype=float)
+    n = t.size
+    if scans.ndim != 2 or scans.shape[0] != n:
+        raise ValueError(f"write_thor_lidar: scans must be (N, B) with N = len(t) = {n}, got {scans.shape}")
+
+    def triple(name, a, required):
+        if a is None:
+            if required:
+                raise ValueError(f"write_thor_lidar: variant {variant} needs {name}")
+            return None
+        a = np.asarray(a, dtype=float)
+        if a.shape != (n, 3):
+            raise ValueError(f"write_thor_lidar: {name} must be ({n}, 3), got {a.shape}")
+        return a
+
+    if variant == 1:
+        pose = triple("pose", pose, True)
+        delta_pose = triple("delta_pose", delta_pose, False)
+        rpy = triple("rpy", rpy, False)
+        rpy = np.zeros((n, 3)) if rpy is None else rpy
+        res = math.radians(0.25) if res is None else float(res)
+    elif variant == 2:
+        delta_pose = triple("delta_pose", delta_pose, True)
+    else:
+        raise ValueError(f"write_thor_lidar: variant must be 1 or 2, got {variant}")
+    cells = np.empty((1, n), dtype=object)
+    for i in range(n):
+        s = {"t": np.array([[t[i]]])}
+        if variant == 1:
+            if delta_pose is not None:
+                s["delta_pose"] = delta_pose[i][None, :]
+            s["pose"] = pose[i][None, :]
+            s["res"] = np.array([[res]])
+            s["rpy"] = rpy[i][None, :]
+            s["scan"] = scans[i][None, :]
+        else:
+            s["scan"] = scans[i][None, :]
+            s["delta_pose"] = delta_pose[i][None, :]
+        cells[0, i] = s
+    scipy.io.savemat(Path(path), {"lidar": cells})

@@ -1,0 +1,196 @@
+"""Rigid motions of the plane, SE(2): composing, inverting and comparing poses.
+
+A pose ``a = (x, y, θ)`` [m, m, rad] is the rigid motion that maps a point
+``p`` given in the frame of ``a`` to the world: ``R(θ) p + t`` with
+``t = (x, y)`` and ``R(θ)`` the rotation by ``θ``. In homogeneous coordinates
+it is the 3×3 matrix ``T(a) = [[R(θ), t], [0, 0, 1]]``, and the three
+operations of this module are matrix algebra written out:
+
+* composition ``a ⊕ b`` (:func:`compose`), ``T(a ⊕ b) = T(a) T(b)``: pose ``b``
+  given in the frame of ``a``, expressed in the world;
+* inverse ``a⁻¹`` (:func:`inverse`), ``T(a⁻¹) = T(a)⁻¹``;
+* relative pose ``a⁻¹ ⊕ b`` (:func:`relative`, written ``b ⊖ a`` in the
+  graph-SLAM literature): where ``b`` is, seen from ``a``. An odometry
+  increment ``u_k = x_{k−1}⁻¹ ⊕ x_k`` is a relative pose in the robot frame, and
+  ``x_k = x_{k−1} ⊕ u_k`` rebuilds the path (:func:`compose_increments`).
+
+Angles of results are wrapped to (−π, π] with
+:func:`fastslam_edu.angles.wrap_angle`. Every function is vectorised: poses are
+``(..., 3)``, points ``(..., 2)``, and leading dimensions broadcast (e.g. ``M``
+particles ``(M, 3)`` composed with one increment ``(3,)``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fastslam_edu.angles import wrap_angle
+
+__all__ = [
+    "compose",
+    "inverse",
+    "relative",
+    "transform_points",
+    "path_increments",
+    "compose_increments",
+]
+
+
+def _poses(name: str, a, caller: str, trailing: int = 3) -> np.ndarray:
+    """``a`` as a finite float array of shape ``(..., trailing)``, else a ValueError."""
+    a = np.asarray(a, dtype=float)
+    if a.ndim == 0 or a.shape[-1] != trailing:
+        raise ValueError(f"{caller}: {name} must have shape (..., {trailing}), got shape {a.shape}")
+    if not np.isfinite(a).all():
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+        raise ValueError(f"{caller}: {name} contains a non-finite value ({float(a[bad])}) at index {bad}")
+    return a
+
+
+def _wrapped(theta: np.ndarray) -> np.ndarray:
+    return np.asarray(wrap_angle(theta), dtype=float)
+
+
+def compose(a, b) -> np.ndarray:
+    """Composition ``a ⊕ b``: pose ``b``, given in the frame of ``a``, in the world.
+
+    ``x = x_a + cos θ_a x_b − sin θ_a y_b``,
+    ``y = y_a + sin θ_a x_b + cos θ_a y_b``,
+    ``θ = wrap(θ_a + θ_b)`` — i.e. ``T(a ⊕ b) = T(a) T(b)``.
+
+    Parameters
+    ----------
+    a, b : array_like, shape (..., 3)
+        Poses ``(x, y, θ)`` [m, m, rad]; leading dimensions broadcast.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+    """
+    a = _poses("a", a, "compose")
+    b = _poses("b", b, "compose")
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
+    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
+    th = _wrapped(a[..., 2] + b[..., 2])
+    return np.stack(np.broadcast_arrays(x, y, th), axis=-1)
+
+
+def inverse(a) -> np.ndarray:
+    """Inverse pose ``a⁻¹`` with ``a ⊕ a⁻¹ = a⁻¹ ⊕ a = (0, 0, 0)``.
+
+    ``a⁻¹ = (−R(θ)ᵀ t, −θ)``:
+    ``x' = −cos θ x − sin θ y``, ``y' = sin θ x − cos θ y``, ``θ' = wrap(−θ)``.
+
+    Parameters
+    ----------
+    a : array_like, shape (..., 3)
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+    """
+    a = _poses("a", a, "inverse")
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = -c * a[..., 0] - s * a[..., 1]
+    y = s * a[..., 0] - c * a[..., 1]
+    return np.stack([x, y, _wrapped(-a[..., 2])], axis=-1)
+
+
+def relative(a, b) -> np.ndarray:
+    """Relative pose ``a⁻¹ ⊕ b``: pose ``b`` seen from the frame of pose ``a``.
+
+    ``(R(θ_a)ᵀ (t_b − t_a), wrap(θ_b − θ_a))``. With ``a = x_{k−1}`` and
+    ``b = x_k`` this is the odometry increment ``u_k`` in the robot frame, and
+    ``compose(a, relative(a, b)) == b``.
+
+    Parameters
+    ----------
+    a, b : array_like, shape (..., 3)
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+    """
+    a = _poses("a", a, "relative")
+    b = _poses("b", b, "relative")
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    x = c * dx + s * dy
+    y = -s * dx + c * dy
+    th = _wrapped(b[..., 2] - a[..., 2])
+    return np.stack(np.broadcast_arrays(x, y, th), axis=-1)
+
+
+def transform_points(pose, points) -> np.ndarray:
+    """Points given in the frame of ``pose``, expressed in the world: ``R(θ) p + t``.
+
+    Parameters
+    ----------
+    pose : array_like, shape (..., 3)
+        ``(x, y, θ)`` [m, m, rad].
+    points : array_like, shape (..., 2)
+        Points ``p`` [m] in the pose's frame; leading dimensions broadcast with
+        those of ``pose`` (e.g. poses ``(M, 1, 3)`` with points ``(B, 2)``).
+
+    Returns
+    -------
+    ndarray, shape (broadcast(...), 2)
+    """
+    pose = _poses("pose", pose, "transform_points")
+    points = _poses("points", points, "transform_points", trailing=2)
+    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+    x = pose[..., 0] + c * points[..., 0] - s * points[..., 1]
+    y = pose[..., 1] + s * points[..., 0] + c * points[..., 1]
+    return np.stack(np.broadcast_arrays(x, y), axis=-1)
+
+
+def path_increments(poses) -> np.ndarray:
+    """Increments ``u_k = x_{k−1}⁻¹ ⊕ x_k`` between consecutive poses of a path.
+
+    Parameters
+    ----------
+    poses : array_like, shape (N, 3)
+
+    Returns
+    -------
+    ndarray, shape (N − 1, 3)
+        Row ``k − 1`` holds ``u_k`` in the frame of ``x_{k−1}``.
+    """
+    poses = _poses("poses", poses, "path_increments")
+    if poses.ndim != 2:
+        raise ValueError(f"path_increments: poses must have shape (N, 3), got shape {poses.shape}")
+    return relative(poses[:-1], poses[1:])
+
+
+def compose_increments(x0, increments) -> np.ndarray:
+    """The path ``x_k = x_{k−1} ⊕ u_k`` started at ``x0`` (dead reckoning).
+
+    Vectorised closed form of the repeated composition: with
+    ``θ_k = θ_0 + Σ_{j≤k} Δθ_j`` (unwrapped),
+    ``t_k = t_0 + Σ_{j≤k} R(θ_{j−1}) (Δx_j, Δy_j)``.
+
+    Parameters
+    ----------
+    x0 : array_like, shape (3,)
+        Start pose.
+    increments : array_like, shape (K, 3)
+        ``u_1 … u_K``, each in the frame of the previous pose.
+
+    Returns
+    -------
+    ndarray, shape (K + 1, 3)
+        ``x_0, x_1, …, x_K`` (so :func:`path_increments` of the result gives back
+        ``increments`` up to angle wrapping).
+    """
+    x0 = _poses("x0", x0, "compose_increments")
+    u = _poses("increments", increments, "compose_increments")
+    if x0.shape != (3,) or u.ndim != 2:
+        raise ValueError(
+            f"compose_increments: x0 must have shape (3,) and increments (K, 3), got {x0.shape} and {u.shape}"
+        )
+    theta = x0[2] + np.concatenate([[0.0], np.cumsum(u[:, 2])])  # θ_0 … θ_K, unwrapped
+    c, s = np.cos(theta[:-1]), np.sin(theta[:-1])  # R(θ_{k−1}) for k = 1 … K
+    steps = np.stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1]], axis=-1)
+    xy = x0[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+    return np.column_stack([xy, _wrapped(theta)])
