@@ -227,6 +227,16 @@ def _floats(tokens, path, lineno, what) -> np.ndarray:
         raise ValueError(f"{path}:{lineno}: non-numeric value in {what}: {exc}") from None
 
 
+def _param_float(params: dict, name: str, path: Path, default):
+    """A numeric CARMEN PARAM, or ``default`` if absent; a ValueError naming it if not a number."""
+    if name not in params:
+        return default
+    try:
+        return float(params[name])
+    except ValueError:
+        raise ValueError(f"{path}: PARAM {name} = {params[name]!r} is not a number") from None
+
+
 def read_carmen(path, *, no_return: float | None = None) -> LaserLog:
     """Read a CARMEN laser log (plain text or ``.gz``).
 
@@ -277,7 +287,9 @@ def read_carmen(path, *, no_return: float | None = None) -> LaserLog:
                     params[tok[1]] = tok[2]
             elif kind == "ODOM":
                 if len(tok) < 4:
-                    raise ValueError(f"{path}:{lineno}: ODOM line has {len(tok)} fields, expected at least 4 (ODOM x y θ …)")
+                    raise ValueError(
+                        f"{path}:{lineno}: ODOM line has {len(tok)} fields, expected at least 4 (ODOM x y θ …)"
+                    )
                 pose = _floats(tok[1:4], path, lineno, "ODOM pose")
                 if not np.isfinite(pose).all():
                     raise ValueError(f"{path}:{lineno}: non-finite ODOM pose {pose.tolist()}")
@@ -288,7 +300,9 @@ def read_carmen(path, *, no_return: float | None = None) -> LaserLog:
                 try:
                     n = int(tok[1])
                 except (IndexError, ValueError):
-                    raise ValueError(f"{path}:{lineno}: FLASER line must start with the beam count, got {tok[1:2]}") from None
+                    raise ValueError(
+                        f"{path}:{lineno}: FLASER line must start with the beam count, got {tok[1:2]}"
+                    ) from None
                 if n < 1 or len(tok) < n + 9:
                     raise ValueError(
                         f"{path}:{lineno}: short FLASER line: {len(tok)} fields for n = {n} beams, expected "
@@ -311,8 +325,9 @@ def read_carmen(path, *, no_return: float | None = None) -> LaserLog:
     if not t:
         raise ValueError(f"{path}: no FLASER line (counted messages: {counts})")
     if no_return is None:
-        no_return = float(params["robot_front_laser_max"]) if "robot_front_laser_max" in params else DEFAULT_NO_RETURN
-    step = math.radians(float(params["laser_front_laser_resolution"])) if "laser_front_laser_resolution" in params else None
+        no_return = _param_float(params, "robot_front_laser_max", path, DEFAULT_NO_RETURN)
+    resolution_deg = _param_float(params, "laser_front_laser_resolution", path, None)
+    step = None if resolution_deg is None else math.radians(resolution_deg)
     ranges = np.array(ranges)
     ranges[~(np.isfinite(ranges) & (ranges > 0) & (ranges < no_return))] = np.nan
     poses, odoms = np.array(poses), np.array(odoms)
