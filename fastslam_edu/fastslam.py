@@ -99,6 +99,15 @@ class FastSLAMParams:
       the particle diversity that resampling at every step (the write-up's
       choice) throws away.
 
+    What each choice is worth, measured (chapter "From textbook to real data"):
+    on Dataset 1 robot 2 the change that clearly matters is the rate-correct
+    motion noise (landmark error 0.67 → 0.37 m, aligned 0.36 → 0.07 m, 2 seeds);
+    without it the defaults lose the robot. The inflation of :math:`R` is what lets
+    the gate work: with the measured, uninflated :math:`R` the gate rejects
+    1400–3200 good sightings per run and 2 of 8 seeds lose the robot. Beyond
+    that, the inflation, the gate and the :math:`N_\\text{eff}` rule change the error
+    by less than the spread between seeds.
+
     Attributes
     ----------
     n_particles : int
