@@ -1,4 +1,4 @@
-"""Command line: ``fastslam-edu run ...`` (FastSLAM 1.0 on a MR.CLAM robot).
+"""Command line: ``fastslam-edu run ...`` (FastSLAM 1.0 on a MR.CLAM robot), ``fastslam-edu gridslam ...`` (grid SLAM on a 2D laser log).
 
 Bad arguments or data give one clear line on stderr and exit status 2 (usage)
 or 1 (data), never a traceback.
@@ -48,7 +48,58 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--json", type=Path, help="write the figures, parameters and seed to this JSON file")
     run.add_argument("--plot", type=Path, help="write a figure (map, path, errors) to this PNG")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    gs = sub.add_parser("gridslam", help="particle-filter grid SLAM on a 2D laser log (Intel, FR079)")
+    gs.add_argument("--scans", required=True, type=Path, help="laser log: CARMEN (.log/.gz) or Intel JSON (.json/.json.gz)")
+    gs.add_argument("--format", choices=LASER_FORMATS, help="file format (default: from the file name)")
+    gs.add_argument("--joints", type=Path, help="THOR joint file (head/neck angles), with --format thor")
+    gs.add_argument("--particles", type=_positive_int, default=30, help="number of particles M")
+    gs.add_argument("--seed", type=int, default=0, help="random seed (same seed, same numbers)")
+    gs.add_argument("--maps", choices=("best", "particles"), default="best",
+                    help="one map from the best particle (the write-up) or one map per particle (RBPF)")
+    gs.add_argument("--no-scan-match", action="store_true", help="no scan matching (the write-up's proposal)")
+    gs.add_argument("--writeup", action="store_true",
+                    help="the write-up's exact rule: 0/1 correlation, exp(c), resample every step, no scan matching")
+    gs.add_argument("--scans-limit", type=_positive_int, help="use only the first N scans")
+    gs.add_argument("--reference", type=Path, help="log with reference poses (e.g. GMapping's) for the aligned RMSE")
+    gs.add_argument("--relations", type=Path, help="Kümmerle et al. relations file (same time base as --scans)")
+    gs.add_argument("--tolerance", type=float, default=1e-3, help="time matching tolerance [s] (default 0.001)")
+    gs.add_argument("--json", type=Path, help="write the metrics, parameters and seed to this JSON file")
+    gs.add_argument("--map", type=Path, help="write the map and path to this PNG")
+    gs.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
+
+
+#: Laser log formats of ``fastslam-edu gridslam``.
+LASER_FORMATS = ("carmen", "intel-json", "thor")
+
+
+def _laser_format(path: Path, given: str | None) -> str:
+    if given:
+        return given
+    name = path.name.lower()
+    if name.endswith((".json", ".json.gz")):
+        return "intel-json"
+    if name.endswith(".mat"):
+        return "thor"
+    return "carmen"
+
+
+def _read_laser(path: Path, fmt: str, what: str):
+    from .datasets.laser import read_carmen, read_intel_json
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} {path}: no such file")
+    if fmt == "thor":
+        raise ValueError(
+            f"{what} {path}: THOR scans are not supported by gridslam yet (their 3D beams must first be projected "
+            "to the floor plane with fastslam_edu.thor and the joint log, which the filter does not do yet); "
+            "use a CARMEN log or the Intel JSON files"
+        )
+    if fmt == "intel-json":
+        name = path.name.lower()
+        return read_intel_json(path, kind=None if ("gfs" in name or "corrected" in name) else "odometry")
+    return read_carmen(path)
 
 
 def cmd_run(args) -> int:
@@ -92,12 +143,111 @@ def cmd_run(args) -> int:
     return 0
 
 
+def cmd_gridslam(args) -> int:
+    import numpy as np
+
+    from .datasets.laser import read_relations
+    from .gridslam import GridSLAMParams, run_grid_slam
+    from .relations import reference_errors, relation_errors
+
+    if not (args.tolerance >= 0):
+        raise ValueError(f"--tolerance must be ≥ 0, got {args.tolerance}")
+    fmt = _laser_format(args.scans, args.format)
+    if args.joints is not None and fmt != "thor":
+        raise ValueError("--joints is only used with --format thor")
+    log = _read_laser(args.scans, fmt, "--scans")
+    base = GridSLAMParams.writeup() if args.writeup else GridSLAMParams()
+    changes = {"n_particles": args.particles, "maps": args.maps}
+    if args.no_scan_match:
+        changes["match_iterations"] = 0
+    params = base.with_(**changes)
+    reference = _read_laser(args.reference, _laser_format(args.reference, None), "--reference") if args.reference else None
+    relations = read_relations(args.relations) if args.relations else None
+
+    result = run_grid_slam(log, params, np.random.default_rng(args.seed), progress=not args.quiet,
+                           n_scans=args.scans_limit)
+    n = len(result.t)
+    summary = {
+        "scans_file": str(args.scans), "format": fmt, "n_scans": n, "seed": args.seed,
+        "params": params.to_dict(), "filter_seconds": result.filter_seconds,
+        "seconds_per_scan": result.filter_seconds / max(n - 1, 1),
+        "resampling_steps": int(result.resampled.sum()), "mean_n_eff": float(result.n_eff[1:].mean()) if n > 1 else None,
+        "grid": {"shape": list(result.grid.shape), "resolution": result.grid.resolution,
+                 "origin": list(result.grid.origin)},
+        "reference": None, "relations": None,
+    }
+    notes = []
+    if reference is not None:
+        est = reference_errors(result.t, result.estimate, reference.t, reference.poses, tolerance=args.tolerance)
+        odo = reference_errors(result.t, result.odometry, reference.t, reference.poses, tolerance=args.tolerance)
+        summary["reference"] = {
+            "file": str(args.reference), "n_matched": est["n_matched"], "rmse_m": est["rmse"], "mean_m": est["mean"],
+            "max_m": est["max"], "odometry_rmse_m": odo["rmse"], "odometry_max_m": odo["max"],
+        }
+    if relations is not None:
+        est = relation_errors(result.t, result.estimate, relations, tolerance=args.tolerance)
+        odo = relation_errors(result.t, result.odometry, relations, tolerance=args.tolerance)
+        ref = relation_errors(reference.t, reference.poses, relations, tolerance=args.tolerance) if reference is not None else None
+
+        def pack(e):  # NaN (no usable relation) is written as null
+            keys = {"n_relations": "n_relations", "n_used": "n_used", "trans_mean": "trans_mean_m",
+                    "trans_std": "trans_std_m", "rot_mean_deg": "rot_mean_deg", "rot_std_deg": "rot_std_deg"}
+            return {new: (None if isinstance(e[k], float) and e[k] != e[k] else e[k]) for k, new in keys.items()}
+
+        summary["relations"] = {"file": str(args.relations), "tolerance_s": args.tolerance, "estimate": pack(est),
+                                "odometry": pack(odo), "reference": None if ref is None else pack(ref)}
+        if est["n_used"] == 0:
+            notes.append(f"no relation has both times within {args.tolerance} s of a scan: different time bases?")
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
+
+    rows = [("scans", n), ("filter_seconds", result.filter_seconds), ("ms_per_scan", 1e3 * summary["seconds_per_scan"]),
+            ("resampling_steps", summary["resampling_steps"])]
+    if summary["reference"]:
+        r = summary["reference"]
+        rows += [("rmse_vs_reference_m", r["rmse_m"]), ("odometry_rmse_vs_reference_m", r["odometry_rmse_m"])]
+    if summary["relations"]:
+        r = summary["relations"]
+        def pm(e, mean, std, digits=4):
+            return "n/a" if e[mean] is None else f"{e[mean]:.{digits}f} ± {e[std]:.{digits}f}"
+
+        rows += [("relations_used", f"{r['estimate']['n_used']} of {r['estimate']['n_relations']}"),
+                 ("relation_trans_error_m", pm(r["estimate"], "trans_mean_m", "trans_std_m")),
+                 ("relation_rot_error_deg", pm(r["estimate"], "rot_mean_deg", "rot_std_deg", 3)),
+                 ("odometry_relation_trans_error_m", pm(r["odometry"], "trans_mean_m", "trans_std_m"))]
+        if r["reference"]:
+            rows.append(("reference_relation_trans_error_m (its own scans)",
+                         pm(r["reference"], "trans_mean_m", "trans_std_m")))
+    width = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"{k:<{width}}  {f'{v:.4f}' if isinstance(v, float) else v}")
+    if args.json:
+        args.json.write_text(json.dumps(summary, indent=2))
+    if args.map:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(7, 6))
+        ax.imshow(result.grid.probability(), origin="lower", extent=result.grid.extent, cmap="gray_r", vmin=0, vmax=1)
+        ax.plot(result.estimate[:, 0], result.estimate[:, 1], "r-", lw=0.6, label="estimate")
+        ax.set(xlabel="x [m]", ylabel="y [m]", title=f"{args.scans.name}: M = {args.particles}, seed {args.seed}")
+        ax.legend(loc="upper right", fontsize=8)
+        fig.tight_layout()
+        fig.savefig(args.map, dpi=120)
+        plt.close(fig)
+    return 0
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         if args.command == "run":
             return cmd_run(args)
+        if args.command == "gridslam":
+            return cmd_gridslam(args)
     except (ValueError, FileNotFoundError, OSError) as exc:
         print(f"fastslam-edu {args.command}: error: {exc}", file=sys.stderr)
         return 1
