@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ..angles import wrap_angle
+from ..metrics import interpolate_poses
 from .log import EventStream, RobotLog
 
 RATES = ("full", "1hz")
@@ -76,12 +77,7 @@ def groundtruth_at(log: RobotLog, t, tolerance: float = 0.5) -> np.ndarray:
             f"robot {log.robot} ({log.source or 'no source'}): t = {float(t[outside][0])!r} s is outside the "
             f"groundtruth span [{float(tg[0])!r}, {float(tg[-1])!r}] s by more than {tolerance} s"
         )
-    theta = np.unwrap(gt["theta"].to_numpy(dtype=float))
-    return np.column_stack([
-        np.interp(t, tg, gt["x"].to_numpy(dtype=float)),
-        np.interp(t, tg, gt["y"].to_numpy(dtype=float)),
-        wrap_angle(np.interp(t, tg, theta)),
-    ])
+    return interpolate_poses(t, tg, gt[["x", "y", "theta"]].to_numpy(dtype=float), tolerance=tolerance)
 
 
 # --------------------------------------------------------------------------
