@@ -338,7 +338,7 @@ def _apply_gate(particles, idx, k, z, R, mu, sigma, loglik, d2, gate_chi2, updat
     """
     outlier = d2 > gate_chi2
     if not outlier.any():
-        return mu, sigma, loglik, ~outlier, True
+        return mu, sigma, loglik, True, True
     w = weights_from_log(particles.logw)[idx]
     accepted = (w @ outlier) / w.sum() <= 0.5
     old_mu, old_sigma = particles.mu[idx, k], particles.sigma[idx, k]
@@ -382,14 +382,14 @@ def update_with_measurements(
     seen = particles.seen[:, k]  # (M, n), a copy
     batch = seen.all(axis=0)  # landmarks every particle has seen: the common case
     if batch.any():
-        kb = k[batch]
+        kb, zb, Rb = (k, z, R) if batch.all() else (k[batch], z[batch], R[batch])
         mu, sigma, loglik, d2 = update_landmark_unchecked(
-            particles.mu[:, kb], particles.sigma[:, kb], particles.poses[:, None, :], z[batch], R[batch]
+            particles.mu[:, kb], particles.sigma[:, kb], particles.poses[:, None, :], zb, Rb
         )  # (M, nb, ...)
         used = np.ones(np.shape(d2), dtype=bool)
         if gate_chi2 is not None:
             mu, sigma, loglik, used, accepted[batch] = _apply_gate(
-                particles, slice(None), kb, z[batch], R[batch], mu, sigma, loglik, d2, gate_chi2, update_map
+                particles, slice(None), kb, zb, Rb, mu, sigma, loglik, d2, gate_chi2, update_map
             )
         particles.logw += loglik.sum(axis=1)
         if update_map:
