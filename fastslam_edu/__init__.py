@@ -1,16 +1,35 @@
 """fastslam_edu: particle-filter SLAM, one concept per module, for teaching.
 
-Modules
--------
-datasets      reading MR.CLAM and LiDAR logs, the event stream, downloads
-sim           a simulated landmark world and robot (known truth, for tests)
-angles        wrapping angles to (-pi, pi]
-motion        the unicycle motion model, sampled for M particles
-measurement   the range-bearing model h, its inverse and Jacobians
-ekf           one 2x2 EKF per landmark per particle: initialise and update
-weights       log importance weights, normalisation, effective sample size
-resampling    multinomial, systematic, stratified and residual resampling
-metrics       landmark and trajectory errors against groundtruth
+Data
+    datasets        MR.CLAM reader, the filter's event stream, landmark-table audit, downloads,
+                    laser logs (CARMEN, Intel JSON, relations, THOR .mat)
+    sim             simulated landmark world and robot; simulated laser world (known truth, for tests)
+    thor_sim        a simulated THOR sequence driven by a real joint log
+    noise_estimation  measuring the sensor and odometry noise against groundtruth
+
+Landmark SLAM (FastSLAM 1.0)
+    angles          wrapping angles to (-pi, pi]
+    motion          the unicycle motion model, sampled for M particles (noise per sqrt(s))
+    measurement     the range-bearing model h, its inverse and Jacobians
+    ekf             one 2x2 EKF per landmark per particle: initialise and update
+    weights         log importance weights, normalisation, effective sample size
+    resampling      multinomial, systematic, stratified and residual resampling
+    fastslam        the vectorised filter (propagate, update, resample, combine)
+    fastslam_loop   the same filter, one particle at a time (the textbook form)
+    landmark_tree   Montemerlo's persistent balanced tree of landmark filters
+    fastslam_tree   the filter with tree-backed maps (O(M log K) resampling)
+    metrics         landmark and trajectory errors, SE(2) alignment
+    experiment      one MR.CLAM run end to end (load, audit, run, score)
+    plotting        figures of a run
+
+Grid SLAM
+    se2             SE(2) poses: compose, inverse, relative
+    grid            log-odds occupancy grid, Bresenham and vectorised ray casting
+    thor            THOR's LiDAR -> head -> body -> world geometry, floor filtering
+    gridslam        particle-filter SLAM with a grid (the THOR write-up's algorithm and variants)
+    relations       Kuemmerle et al. relation errors
+
+cli                 the ``fastslam-edu`` command
 """
 
 __version__ = "0.1.0"
