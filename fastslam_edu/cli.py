@@ -50,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress bar")
 
     gs = sub.add_parser("gridslam", help="particle-filter grid SLAM on a 2D laser log (Intel, FR079)")
-    gs.add_argument("--scans", required=True, type=Path, help="laser log: CARMEN (.log/.gz) or Intel JSON (.json/.json.gz)")
+    gs.add_argument("--scans", required=True, type=Path, help="laser log: CARMEN (.log/.gz), Intel JSON (.json/.json.gz) or THOR LiDAR (.mat, with --joints)")
     gs.add_argument("--format", choices=LASER_FORMATS, help="file format (default: from the file name)")
     gs.add_argument("--joints", type=Path, help="THOR joint file (head/neck angles), with --format thor")
     gs.add_argument("--particles", type=_positive_int, default=30, help="number of particles M")
@@ -85,21 +85,34 @@ def _laser_format(path: Path, given: str | None) -> str:
     return "carmen"
 
 
-def _read_laser(path: Path, fmt: str, what: str):
+def _read_laser(path: Path, fmt: str, what: str, joints: Path | None = None):
     from .datasets.laser import read_carmen, read_intel_json
 
     if not path.is_file():
         raise FileNotFoundError(f"{what} {path}: no such file")
     if fmt == "thor":
-        raise ValueError(
-            f"{what} {path}: THOR scans are not supported by gridslam yet (their 3D beams must first be projected "
-            "to the floor plane with fastslam_edu.thor and the joint log, which the filter does not do yet); "
-            "use a CARMEN log or the Intel JSON files"
-        )
+        return _read_thor_planar(path, joints, what)
     if fmt == "intel-json":
         name = path.name.lower()
         return read_intel_json(path, kind=None if ("gfs" in name or "corrected" in name) else "odometry")
     return read_carmen(path)
+
+
+def _read_thor_planar(path: Path, joints: Path | None, what: str):
+    """A THOR LiDAR log projected to the body's horizontal plane (:func:`fastslam_edu.thor.planar_laser_log`)."""
+    from .datasets.laser import read_thor_joints, read_thor_lidar
+    from .thor import planar_laser_log
+
+    if joints is None:
+        raise ValueError(f"{what} {path}: THOR scans need the joint log (head/neck angles): add --joints FILE")
+    if not joints.is_file():
+        raise FileNotFoundError(f"--joints {joints}: no such file")
+    lidar = read_thor_lidar(path)
+    t_j, neck, head = read_thor_joints(joints)
+    try:
+        return planar_laser_log(lidar, t_j, neck, head)
+    except ValueError as exc:
+        raise ValueError(f"{what} {path} with --joints {joints}: {exc}") from None
 
 
 def cmd_run(args) -> int:
@@ -155,7 +168,7 @@ def cmd_gridslam(args) -> int:
     fmt = _laser_format(args.scans, args.format)
     if args.joints is not None and fmt != "thor":
         raise ValueError("--joints is only used with --format thor")
-    log = _read_laser(args.scans, fmt, "--scans")
+    log = _read_laser(args.scans, fmt, "--scans", args.joints)
     base = GridSLAMParams.writeup() if args.writeup else GridSLAMParams()
     changes = {"n_particles": args.particles, "maps": args.maps}
     if args.no_scan_match:
@@ -172,6 +185,7 @@ def cmd_gridslam(args) -> int:
         "params": params.to_dict(), "filter_seconds": result.filter_seconds,
         "seconds_per_scan": result.filter_seconds / max(n - 1, 1),
         "resampling_steps": int(result.resampled.sum()), "mean_n_eff": float(result.n_eff[1:].mean()) if n > 1 else None,
+        "planar_projection": ({"params": log.params, "counts": log.counts} if fmt == "thor" else None),
         "grid": {"shape": list(result.grid.shape), "resolution": result.grid.resolution,
                  "origin": list(result.grid.origin)},
         "reference": None, "relations": None,

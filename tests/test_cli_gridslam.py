@@ -103,7 +103,7 @@ def test_errors_are_one_line_with_nonzero_exit(files, tmp_path, capsys):
     (tmp_path / "x.mat").write_bytes(b"")
     assert main(["gridslam", "--scans", str(tmp_path / "x.mat"), "--quiet"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "THOR" in err[0] and "not supported" in err[0]
+    assert len(err) == 1 and "THOR" in err[0] and "--joints" in err[0]
     bad = tmp_path / "bad.log"
     bad.write_text("FLASER 3 1.0 2.0\n")
     assert main(["gridslam", "--scans", str(bad), "--quiet"]) == 1
