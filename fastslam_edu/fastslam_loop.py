@@ -99,13 +99,14 @@ def run_fastslam_loop(
         for p in particles:
             p.landmarks = {k: (np.array(m, dtype=float), np.eye(2) * 1e-6) for k, m in enumerate(landmarks)}
             p.count = {k: 1 for k in range(len(landmarks))}
+    u = np.asarray(stream.u, dtype=float) * np.asarray(params.odometry_scale, dtype=float)  # as the engine
     path = np.empty((len(stream), 3))
     for s, e in _segments(stream):
         eps = rng.standard_normal((M, e - s + 1, params.motion_noise.n_draws))
         w = weights_from_log(np.array([p.logw for p in particles]))
         for i, k in enumerate(range(s, e + 1)):
             for m, p in enumerate(particles):
-                p.pose = move(p.pose, stream.u[k], stream.dt[k], params.motion_noise, eps[m, i])
+                p.pose = move(p.pose, u[k], stream.dt[k], params.motion_noise, eps[m, i])
             path[k] = _weighted_mean_pose(particles, w)
         z, lm = stream.measurements_at(e)
         if len(z) == 0:

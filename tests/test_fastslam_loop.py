@@ -31,12 +31,13 @@ import pytest
 
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream
-from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
 from fastslam_edu.fastslam_loop import run_fastslam_loop
 from fastslam_edu.motion import MotionNoise
 from fastslam_edu.sim import simulate_dataset
 from fastslam_edu.weights import weights_from_log
+
+from streams import with_repeated_measurements
 
 M = 6
 R = np.diag([0.05**2, 0.02**2])
@@ -69,25 +70,6 @@ def world():
     data = simulate_dataset(3, duration=6.0, outlier_prob=0.1)
     stream = event_stream(data.robots[1], data.landmark_subjects)
     return data, stream
-
-
-def with_repeated_measurements(stream: EventStream, every: int = 4) -> EventStream:
-    """Every ``every``-th measurement step gets a second reading of its first landmark (r + 2 cm)."""
-    z, lm, offsets = [], [], [0]
-    steps_with = 0
-    for k in range(len(stream)):
-        zk, lk = stream.measurements_at(k)
-        zk, lk = list(zk), list(lk)
-        if len(zk):
-            if steps_with % every == 0:
-                zk.append(zk[0] + [0.02, 0.0])
-                lk.append(lk[0])
-            steps_with += 1
-        z += zk
-        lm += lk
-        offsets.append(offsets[-1] + len(zk))
-    return dataclasses.replace(stream, z=np.array(z, dtype=float).reshape(-1, 2),
-                               landmark=np.array(lm, dtype=np.int64), offsets=np.array(offsets, dtype=np.int64))
 
 
 def compare(stream, params, landmarks=None, seed=7, *, loop_params=None, loop_seed=None):
@@ -143,7 +125,7 @@ def test_engine_equals_loop_reference(world, case):
 def test_engine_equals_loop_with_a_landmark_measured_twice_at_one_instant(world):
     """Two readings of one landmark at one instant are applied one after the other by both."""
     _, stream = world
-    twice = with_repeated_measurements(stream)
+    twice = with_repeated_measurements(stream, every=4)
     assert twice.n_measurements > stream.n_measurements
     params = FastSLAMParams(n_particles=M, motion_noise=CONTROL, measurement_cov=R, resampler="systematic")
     compare(twice, params)

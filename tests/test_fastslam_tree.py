@@ -22,20 +22,20 @@ fewer distinct nodes than M separate trees would.
 
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 import pytest
 
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream, groundtruth_at
-from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
 from fastslam_edu.fastslam_loop import run_fastslam_loop
 from fastslam_edu.fastslam_tree import TreeParticleSet, crossover_k, run_fastslam_tree, step_cost, step_particles
 from fastslam_edu.landmark_tree import count_nodes, tree_depth
 from fastslam_edu.motion import MotionNoise
 from fastslam_edu.sim import simulate_dataset
+
+from streams import with_repeated_measurements
 
 TOL = 1e-6
 M = 20
@@ -46,23 +46,6 @@ def world():
     data = simulate_dataset(5, duration=20.0, outlier_prob=0.1)
     log = data.robots[1]
     return data, log, event_stream(log, data.landmark_subjects)
-
-
-def with_repeated_measurements(stream: EventStream, every: int = 3) -> EventStream:
-    """Every ``every``-th measurement step gets a second reading of its first landmark (r + 2 cm)."""
-    z, lm, offsets, steps_with = [], [], [0], 0
-    for k in range(len(stream)):
-        zk, lk = (list(a) for a in stream.measurements_at(k))
-        if zk:
-            if steps_with % every == 0:
-                zk.append(zk[0] + [0.02, 0.0])
-                lk.append(lk[0])
-            steps_with += 1
-        z += zk
-        lm += lk
-        offsets.append(offsets[-1] + len(zk))
-    return dataclasses.replace(stream, z=np.array(z, dtype=float).reshape(-1, 2),
-                               landmark=np.array(lm, dtype=np.int64), offsets=np.array(offsets, dtype=np.int64))
 
 
 def differences(a, b) -> dict:
@@ -120,7 +103,7 @@ def test_tree_filter_equals_array_engine(world, case):
 
 def test_a_landmark_measured_twice_at_one_instant(world):
     _, _, stream = world
-    twice = with_repeated_measurements(stream)
+    twice = with_repeated_measurements(stream, every=3)
     assert twice.n_measurements > stream.n_measurements
     params = FastSLAMParams(n_particles=M)
     diff = differences(run_fastslam(twice, params, 3), run_fastslam_tree(twice, params, 3))

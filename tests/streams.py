@@ -1,0 +1,26 @@
+"""Event streams made for tests (shared by the test files that need them)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from fastslam_edu.datasets.log import EventStream
+
+
+def with_repeated_measurements(stream: EventStream, every: int) -> EventStream:
+    """Every ``every``-th measurement step gets a second reading of its first landmark (r + 2 cm)."""
+    z, lm, offsets, steps_with = [], [], [0], 0
+    for k in range(len(stream)):
+        zk, lk = (list(a) for a in stream.measurements_at(k))
+        if zk:
+            if steps_with % every == 0:
+                zk.append(zk[0] + [0.02, 0.0])
+                lk.append(lk[0])
+            steps_with += 1
+        z += zk
+        lm += lk
+        offsets.append(offsets[-1] + len(zk))
+    return dataclasses.replace(stream, z=np.array(z, dtype=float).reshape(-1, 2),
+                               landmark=np.array(lm, dtype=np.int64), offsets=np.array(offsets, dtype=np.int64))
