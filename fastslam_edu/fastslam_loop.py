@@ -46,19 +46,20 @@ class Particle:
         return copy.deepcopy(self)
 
 
-def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_chi2=None) -> bool:
+def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_chi2=None) -> None:
     """Lines 6–18 of FastSLAM_1 for one particle and one measurement.
 
-    With a gate: if ``d² = νᵀQ⁻¹ν > gate_chi2`` the measurement is an outlier for
-    this particle — its landmark is left alone and its log weight drops by
-    the floored amount ``log N`` at ``d² = gate_chi2``; but a landmark seen only
-    once is re-initialised from the new sighting instead (one of its two
-    sightings is an outlier). Returns True if it was an outlier.
+    With a gate, if ``d² = νᵀQ⁻¹ν > gate_chi2`` the measurement is an outlier for
+    this particle: its log weight still gets the log-likelihood, but its
+    landmark is left alone — unless the landmark was seen only once, which is
+    then re-initialised from the new sighting at no cost in weight (one of its
+    two sightings is wrong). The measurements no particle explains never get
+    here (:func:`is_explained`).
     """
     if j not in p.landmarks:
         p.landmarks[j] = initialise_landmark(p.pose, z, R)
         p.count[j] = 1
-        return False
+        return
     mu, sigma = p.landmarks[j]
     mu_new, sigma_new, loglik = update_landmark_one(mu, sigma, p.pose, z, R)
     if gate_chi2 is not None:
@@ -67,13 +68,24 @@ def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_
             if p.count[j] == 1 and update_map:
                 p.landmarks[j] = initialise_landmark(p.pose, z, R)
             else:
-                p.logw += loglik + 0.5 * (float(d2) - gate_chi2)
-            return True
+                p.logw += loglik
+            return
     p.logw += loglik
     p.count[j] += 1
     if update_map:
         p.landmarks[j] = (mu_new, sigma_new)
-    return False
+
+
+def is_explained(particles: list[Particle], z, j: int, R, gate_chi2) -> bool:
+    """False if *every* particle that has seen landmark ``j`` puts ``z`` beyond the gate.
+
+    Such a measurement fits no hypothesis (a misread barcode, a range off by
+    metres) and the filter sets it aside, unless it escapes the gate.
+    """
+    if gate_chi2 is None:
+        return True
+    d2 = [innovation_statistics(*p.landmarks[j], p.pose, z, R)[1] for p in particles if j in p.landmarks]
+    return not d2 or min(d2) <= gate_chi2
 
 
 def run_fastslam_loop(
@@ -101,6 +113,8 @@ def run_fastslam_loop(
             p.count = {k: 1 for k in range(len(landmarks))}
     u = np.asarray(stream.u, dtype=float) * np.asarray(params.odometry_scale, dtype=float)  # as the engine
     path = np.empty((len(stream), 3))
+    unexplained_since = np.full(stream.n_landmarks, np.inf)  # the escape from the gate, as the engine
+    escape_after = np.inf if params.gate_escape_s is None else params.gate_escape_s
     for s, e in _segments(stream):
         eps = rng.standard_normal((M, e - s + 1, params.motion_noise.n_draws))
         w = weights_from_log(np.array([p.logw for p in particles]))
@@ -111,9 +125,16 @@ def run_fastslam_loop(
         z, lm = stream.measurements_at(e)
         if len(z) == 0:
             continue
-        for zi, j, R in zip(z, lm, params.measurement_covariance(z)):
+        escape = stream.t[e] - unexplained_since[lm] >= escape_after
+        explained = np.ones(len(lm), dtype=bool)
+        for i, (zi, j, R) in enumerate(zip(z, lm, params.measurement_covariance(z))):
+            explained[i] = is_explained(particles, zi, int(j), R, params.gate_chi2)
+            if not (explained[i] or escape[i]):
+                continue  # rejected: no particle explains it
+            gate = None if escape[i] else params.gate_chi2
             for p in particles:
-                update_particle(p, zi, int(j), R, update_map=params.mode != "localize", gate_chi2=params.gate_chi2)
+                update_particle(p, zi, int(j), R, update_map=params.mode != "localize", gate_chi2=gate)
+        unexplained_since[lm] = np.where(explained, np.inf, np.minimum(unexplained_since[lm], stream.t[e]))
         w = weights_from_log(np.array([p.logw for p in particles]))
         if effective_sample_size(w) < params.resample_threshold * M:
             idx = get_resampler(params.resampler)(w, rng)

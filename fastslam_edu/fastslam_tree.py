@@ -116,9 +116,10 @@ class TreeParticleSet:
         self.trees = [known] * len(self)
         return self
 
-    def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None) -> np.ndarray:
+    def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None) -> np.ndarray:
         """Step 2 for the measurements of one instant: :func:`update_trees_with_measurements`."""
-        return update_trees_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2)
+        return update_trees_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2,
+                                              escape=escape)
 
     def to_particle_set(self) -> ParticleSet:
         """The same particles as a dense :class:`~fastslam_edu.fastslam.ParticleSet` (:math:`O(MK)`)."""
@@ -131,7 +132,7 @@ class TreeParticleSet:
 
 
 def update_trees_with_measurements(
-    particles: TreeParticleSet, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None
+    particles: TreeParticleSet, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None
 ) -> np.ndarray:
     """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,).
 
@@ -148,7 +149,7 @@ def update_trees_with_measurements(
        outlier for it, or a known map) keeps its tree.
 
     ``R`` is (2, 2) or one per measurement (n, 2, 2). Returns a bool (n,):
-    False where the gate rejected the measurement.
+    False where no particle explains the measurement (rejected by the gate, unless escaped).
     """
     k = np.asarray(k, dtype=int).reshape(-1)
     keys, local = np.unique(k, return_inverse=True)  # local index of each measurement's landmark
@@ -156,14 +157,15 @@ def update_trees_with_measurements(
     mu[~seen], sigma[~seen] = 0.0, np.eye(2)  # the array engine's values for a landmark not seen yet
     before = mu.copy(), sigma.copy(), seen.copy(), count.copy()
     measured = ParticleSet(poses=particles.poses, mu=mu, sigma=sigma, seen=seen, logw=particles.logw, count=count)
-    accepted = update_with_measurements(measured, z, local, R, update_map=update_map, gate_chi2=gate_chi2)
+    explained = update_with_measurements(measured, z, local, R, update_map=update_map, gate_chi2=gate_chi2,
+                                        escape=escape)
     particles.logw = measured.logw
     changed = ((mu != before[0]).any(axis=-1) | (sigma != before[1]).any(axis=(-2, -1))
                | (seen != before[2]) | (count != before[3]))  # (M, n')
     for j, key in enumerate(keys.tolist()):
         if changed[:, j].any():
             particles.trees = set_each(particles.trees, key, mu[:, j], sigma[:, j], count[:, j], which=changed[:, j])
-    return accepted
+    return explained
 
 
 # ---------------------------------------------------------------- the whole run

@@ -24,3 +24,17 @@ def with_repeated_measurements(stream: EventStream, every: int) -> EventStream:
         offsets.append(offsets[-1] + len(zk))
     return dataclasses.replace(stream, z=np.array(z, dtype=float).reshape(-1, 2),
                                landmark=np.array(lm, dtype=np.int64), offsets=np.array(offsets, dtype=np.int64))
+
+
+def with_landmark_moved(stream: EventStream, landmark: int, after: float, extra_range: float) -> EventStream:
+    """Sightings of ``landmark`` from time ``after`` [s] on read ``extra_range`` metres further.
+
+    As if the landmark had been moved away from the robot: every later
+    sighting disagrees with every particle's map, again and again — the case
+    the gate's escape (``gate_escape_s``) is for.
+    """
+    step = np.repeat(np.arange(len(stream)), np.diff(stream.offsets))
+    moved = (stream.landmark == landmark) & (np.asarray(stream.t)[step] >= after)
+    z = np.array(stream.z, dtype=float)
+    z[moved, 0] += extra_range
+    return dataclasses.replace(stream, z=z)

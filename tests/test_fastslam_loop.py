@@ -37,7 +37,7 @@ from fastslam_edu.motion import MotionNoise
 from fastslam_edu.sim import simulate_dataset
 from fastslam_edu.weights import weights_from_log
 
-from streams import with_repeated_measurements
+from streams import with_landmark_moved, with_repeated_measurements
 
 M = 6
 R = np.diag([0.05**2, 0.02**2])
@@ -129,6 +129,22 @@ def test_engine_equals_loop_with_a_landmark_measured_twice_at_one_instant(world)
     assert twice.n_measurements > stream.n_measurements
     params = FastSLAMParams(n_particles=M, motion_noise=CONTROL, measurement_cov=R, resampler="systematic")
     compare(twice, params)
+
+
+@pytest.mark.parametrize("escape_s", [0.3, None], ids=["escape", "no-escape"])
+def test_engine_equals_loop_when_a_landmark_moves(world, escape_s):
+    """A landmark 1 m off from t0 + 3 s: rejected by both, then (escape) applied without the gate by both."""
+    _, stream = world
+    k = int(np.bincount(stream.landmark).argmax())  # the landmark seen most often
+    moved = with_landmark_moved(stream, k, stream.t[0] + 3.0, 1.0)
+    params = FastSLAMParams(n_particles=M, motion_noise=CONTROL, measurement_cov=R, gate_chi2=GATE,
+                            gate_escape_s=escape_s, range_std_slope=0.0)
+    r, _ = compare(moved, params)
+    before = run_fastslam(stream, params, 7).measurements_rejected  # the injected outliers
+    if escape_s is None:  # every later sighting of the moved landmark is rejected (measured: 21 vs 6)
+        assert r.measurements_rejected >= before + 10
+    else:  # the escape lets them in after 0.3 s (measured: 7 vs 6)
+        assert r.measurements_rejected <= before + 3
 
 
 @pytest.mark.parametrize(
