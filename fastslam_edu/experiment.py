@@ -104,7 +104,10 @@ def params_dict(params: FastSLAMParams) -> dict:
         "resampler": params.resampler,
         "resample_threshold": params.resample_threshold,
         "gate_chi2": params.gate_chi2,
+        "gate_escape_s": params.gate_escape_s,
         "mode": params.mode,
+        "odometry_scale": list(params.odometry_scale),
+        "range_std_slope": params.range_std_slope,
     }
 
 

@@ -27,8 +27,9 @@ logw       (M,)            :math:`\\log w^{[m]}` (unnormalised)
 =========  ==============  ==========================================
 
 Between two measurement instants the filter propagates through every odometry
-step of the segment at once (:func:`fastslam_edu.motion.move_segment`), which is
-what makes full-rate (~65 Hz) odometry cheap.
+step of the segment at once, with running sums instead of a loop
+(:func:`propagate_segment`, :func:`fastslam_edu.motion.segment_increments`), which
+is what makes full-rate (~65 Hz) odometry cheap.
 
 What real data needs beyond the textbook (see :mod:`fastslam_edu.noise_estimation`):
 noise densities per √s (independent of the odometry rate), and a gate against
@@ -47,7 +48,8 @@ import numpy as np
 
 from .datasets.log import EventStream
 from .ekf import initialise_landmark, update_landmark_unchecked
-from .motion import MotionNoise, move_segment
+from .angles import wrap_angle
+from .motion import MotionNoise, path_from_increments, segment_increments
 from .resampling import get_resampler
 from .weights import weights_from_log
 
@@ -283,14 +285,67 @@ def propagate(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.
     Returns
     -------
     path : ndarray (M, L, 3)
-        Every particle's pose after each step; ``particles.poses`` is set to the last.
+        Every particle's pose after each step (headings not wrapped: they run on
+        continuously from the wrapped starting headings); ``particles.poses`` is
+        set to the poses after the last step (heading wrapped).
+    """
+    x0, (dx, dy, theta) = _sample_segment(particles, u, dt, noise, rng)
+    return path_from_increments(x0, dx, dy, theta, wrap=False)
+
+
+def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.Generator, w):
+    """Step 1 as the filter runs it: :func:`propagate`, returning only the estimates along the way.
+
+    The same random numbers and the same final poses as :func:`propagate`, but
+    instead of every particle's path (M, L, 3) it returns what the filter
+    records at each step: the weighted-mean pose and the pose of the
+    highest-weight particle. The mean position is a running sum of mean
+    displacements, :math:`\\bar x_t = \\sum_m w^{[m]} x_0^{[m]} + \\sum_{j \\le t} \\sum_m w^{[m]} \\Delta x_j^{[m]}`
+    (weights sum to 1): one running sum of L numbers instead of M of them.
+
+    Parameters
+    ----------
+    u, dt, noise, rng : as :func:`propagate`.
+    w : ndarray (M,)
+        Normalised weights (constant along the segment: no measurement in it).
+
+    Returns
+    -------
+    mean, best : ndarray (L, 3)
+        Weighted-mean pose (:func:`combined_pose`) and best particle's pose after each step.
+    """
+    x0, (dx, dy, theta) = _sample_segment(particles, u, dt, noise, rng)
+    b = int(np.argmax(w))
+    if dx.shape[1] == 1:  # one step (the 1 Hz stream): the poses are the new ones
+        return combined_pose(particles.poses, w)[None], particles.poses[b][None]
+    mean = np.empty((dx.shape[1], 3))
+    mean[:, 0] = w @ x0[:, 0] + np.cumsum(w @ dx)
+    mean[:, 1] = w @ x0[:, 1] + np.cumsum(w @ dy)
+    mean[:, 2] = combined_heading(theta, w)
+    best = np.empty_like(mean)
+    best[:, 0] = x0[b, 0] + np.cumsum(dx[b])
+    best[:, 1] = x0[b, 1] + np.cumsum(dy[b])
+    best[:, 2] = wrap_angle(theta[b])
+    return mean, best
+
+
+def _sample_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.Generator):
+    """Draw the segment's noise, compute the increments, move ``particles.poses`` to the end.
+
+    Returns ``(x0, (dx, dy, theta))``: the starting poses and
+    :func:`fastslam_edu.motion.segment_increments`.
     """
     u = np.atleast_2d(np.asarray(u, dtype=float))
     dt = np.atleast_1d(np.asarray(dt, dtype=float))
     eps = rng.standard_normal((len(particles), len(dt), noise.n_draws))
-    path = move_segment(particles.poses, u, dt, noise, eps, check=False)
-    particles.poses = path[:, -1].copy()
-    return path
+    x0 = particles.poses
+    dx, dy, theta = segment_increments(x0, u, dt, noise, eps)
+    end = np.empty_like(x0)
+    end[:, 0] = x0[:, 0] + dx.sum(axis=1)
+    end[:, 1] = x0[:, 1] + dy.sum(axis=1)
+    end[:, 2] = wrap_angle(theta[:, -1])
+    particles.poses = end
+    return x0, (dx, dy, theta)
 
 
 def update_with_measurement(
@@ -331,7 +386,7 @@ def update_with_measurement(
         mu, sigma, loglik, d2 = update_landmark_unchecked(
             particles.mu[idx, k], particles.sigma[idx, k], particles.poses[idx], z, R
         )
-        used = np.ones(np.shape(d2), dtype=bool)
+        used = True
         if gate_chi2 is not None:
             mu, sigma, loglik, used, explained = gate_measurements(
                 particles, idx, k, z, R, mu, sigma, loglik, d2, gate_chi2, update_map, escape
@@ -418,10 +473,16 @@ def update_with_measurements(
     """
     z = np.asarray(z, dtype=float).reshape(-1, 2)
     k = np.asarray(k, dtype=int).reshape(-1)
-    R = np.broadcast_to(np.asarray(R, dtype=float), (len(k), 2, 2))  # one R per measurement
+    R = np.asarray(R, dtype=float)
+    if R.ndim == 2:
+        R = np.broadcast_to(R, (len(k), 2, 2))  # one R per measurement
     escape = np.zeros(len(k), dtype=bool) if escape is None else np.broadcast_to(np.asarray(escape, dtype=bool), k.shape)
+    if len(k) == 1:  # the common case: one landmark, read and written through views (no copies)
+        return np.array([update_with_measurement(
+            particles, z[0], int(k[0]), R[0], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[0])
+        )])
     explained = np.ones(len(k), dtype=bool)
-    if len(k) > 1 and len(set(k.tolist())) < len(k):  # the same landmark twice: distinct ones first, then the rest
+    if len(set(k.tolist())) < len(k):  # the same landmark twice: distinct ones first, then the rest
         first = np.unique(k, return_index=True)[1]
         rest = np.setdiff1d(np.arange(len(k)), first)
         for part in (first, rest):
@@ -430,13 +491,13 @@ def update_with_measurements(
             )
         return explained
     seen = particles.seen[:, k]  # (M, n), a copy
-    batch = seen.all(axis=0)  # landmarks every particle has seen: the common case
+    batch = np.ones(len(k), dtype=bool) if seen.all() else seen.all(axis=0)  # seen by every particle: the common case
     if batch.any():
         kb, zb, Rb, eb = (k, z, R, escape) if batch.all() else (k[batch], z[batch], R[batch], escape[batch])
         mu, sigma, loglik, d2 = update_landmark_unchecked(
             particles.mu[:, kb], particles.sigma[:, kb], particles.poses[:, None, :], zb, Rb
         )  # (M, nb, ...)
-        used = np.ones(np.shape(d2), dtype=bool)
+        used = True
         if gate_chi2 is not None:
             mu, sigma, loglik, used, explained[batch] = gate_measurements(
                 particles, slice(None), kb, zb, Rb, mu, sigma, loglik, d2, gate_chi2, update_map, eb
@@ -445,10 +506,11 @@ def update_with_measurements(
         if update_map:
             particles.mu[:, kb], particles.sigma[:, kb] = mu, sigma
         particles.count[:, kb] += used
-    for j in np.flatnonzero(~batch):  # first sightings (or particles that differ)
-        explained[j] = update_with_measurement(
-            particles, z[j], int(k[j]), R[j], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[j])
-        )
+    if not batch.all():
+        for j in np.flatnonzero(~batch):  # first sightings (or particles that differ)
+            explained[j] = update_with_measurement(
+                particles, z[j], int(k[j]), R[j], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[j])
+            )
     return explained
 
 
@@ -471,15 +533,36 @@ def resample_if_needed(
 def combined_pose(poses, w) -> np.ndarray:
     """Weighted mean pose: :math:`\\bar x = \\sum_m w^{[m]} x^{[m]}`, with the circular mean for θ.
 
-    ``poses`` (M, ..., 3), ``w`` (M,) normalised; returns (..., 3).
+    ``poses`` (M, ..., 3), ``w`` (M,) normalised; returns (..., 3), heading
+    wrapped (:func:`combined_heading`).
     """
     poses = np.asarray(poses, dtype=float)
-    theta = poses[..., 2]
     out = np.empty(poses.shape[1:])
     out[..., 0] = w @ poses[..., 0]
     out[..., 1] = w @ poses[..., 1]
-    out[..., 2] = np.arctan2(w @ np.sin(theta), w @ np.cos(theta))
+    out[..., 2] = combined_heading(poses[..., 2], w)
     return out
+
+
+def combined_heading(theta, w) -> np.ndarray:
+    """Circular weighted mean :math:`\\bar\\theta = \\operatorname{atan2}(\\sum_m w^{[m]} \\sin\\theta^{[m]}, \\sum_m w^{[m]} \\cos\\theta^{[m]})`.
+
+    ``theta`` (M, ...) [rad], ``w`` (M,) normalised; returns (...), wrapped.
+    For many headings it is computed relative to particle 0's heading
+    :math:`\\theta^{[0]}` (the same number: rotating every angle rotates the mean):
+    the deviations :math:`\\delta^{[m]} = \\theta^{[m]} - \\theta^{[0]}`, wrapped, are small, so
+    their sines and cosines can be taken in single precision (~10× faster; error
+    ~1e-8 rad for a spread of 0.1 rad) — the filter averages every particle's
+    heading at every odometry step.
+    """
+    theta = np.asarray(theta, dtype=float)
+    if theta.size <= 256:  # a few headings: the direct formula is fewer operations
+        return wrap_angle(np.arctan2(w @ np.sin(theta), w @ np.cos(theta)))
+    ref = theta[0]
+    delta = theta - ref
+    delta -= (2.0 * np.pi) * np.rint(delta * (0.5 / np.pi))  # to [-π, π]
+    delta = delta.astype(np.float32)
+    return wrap_angle(ref + np.arctan2(w @ np.sin(delta).astype(float), w @ np.cos(delta).astype(float)))
 
 
 def combined_map(particles: ParticleSet):
@@ -637,20 +720,20 @@ def run_fastslam(
         raise ValueError("the event stream has non-finite commands or negative time steps")
     w = particles.weights
     for s, e in _segments(stream, () if kidnap is None else (kidnap[0],)):
-        if params.mode == "map":
-            path = np.broadcast_to(groundtruth_poses(stream.t[s : e + 1]), (M, e - s + 1, 3))
-            particles.poses = np.array(path[:, -1])
+        if params.mode == "map":  # every particle at the groundtruth poses
+            mean = best = np.asarray(groundtruth_poses(stream.t[s : e + 1]), dtype=float)
+            particles.poses = np.tile(mean[-1], (M, 1))
         else:
-            path = propagate(particles, u_all[s : e + 1], dt_all[s : e + 1], params.motion_noise, rng)
+            mean, best = propagate_segment(particles, u_all[s : e + 1], dt_all[s : e + 1], params.motion_noise, rng, w)
         if kidnap_step is not None and s <= kidnap_step <= e:  # segments end at the kidnap step
             particles.poses[:] = np.asarray(kidnap[1], dtype=float)
-            path = np.array(path)
-            path[:, kidnap_step - s :] = particles.poses[:, None, :]
+            mean, best = np.array(mean), np.array(best)
+            mean[kidnap_step - s :] = best[kidnap_step - s :] = particles.poses[0]
         z, lm = stream.measurements_at(e)
         last = e if len(z) else e + 1  # a measurement step's estimate is taken after the update
         if last > s:
-            pose_mean[s:last] = combined_pose(path[:, : last - s], w)
-            pose_best[s:last] = path[int(np.argmax(w)), : last - s]
+            pose_mean[s:last] = mean[: last - s]
+            pose_best[s:last] = best[: last - s]
         if len(z):
             t_e = stream.t[e]
             escape = t_e - unexplained_since[lm] >= escape_after
@@ -668,7 +751,7 @@ def run_fastslam(
             n_resamples += did
             ess_t.append(t_e)
             ess.append(n_eff)
-            w = particles.weights
+            w = np.full(M, 1.0 / M) if did else particles.weights
             pose_mean[e] = combined_pose(particles.poses, w)
             pose_best[e] = particles.poses[int(np.argmax(w))]
         if bar is not None:
@@ -712,6 +795,8 @@ __all__ = [
     "ParticleSet",
     "FastSLAMResult",
     "propagate",
+    "propagate_segment",
+    "combined_heading",
     "update_with_measurement",
     "update_with_measurements",
     "resample_if_needed",

@@ -373,16 +373,58 @@ def _check_segment(x, u, dt, noise, eps) -> None:
         raise ValueError(f"eps must be finite with shape {shape}, got {np.shape(eps)}")
 
 
-def move_segment(x, u, dt, noise: MotionNoise, eps, *, check: bool = True) -> np.ndarray:
+def segment_increments(x, u, dt, noise: MotionNoise, eps):
+    """The pieces of :func:`move_segment`: each step's displacement, and the headings.
+
+    With the per-step increments ``Δs_j`` and ``Δθ_j`` (command plus noise, as in
+    :func:`move`), the heading before step ``j`` is ``θ_j = θ_0 + Σ_{i<j} Δθ_i``
+    and the step moves the robot by ``Δs_j (cos θ_j, sin θ_j)`` (plus, for noise
+    on the state, ``σ_xy √Δt (ε₁, ε₂)``). The poses are running sums of these
+    displacements: :func:`move_segment` takes them; the filter, which needs only
+    weighted means, sums far fewer numbers (:func:`fastslam_edu.fastslam.propagate_segment`).
+
+    Parameters are those of :func:`move_segment` (unchecked: ``x`` (M, 3),
+    ``u`` (L, 2), ``dt`` (L,), ``eps`` (M, L, noise.n_draws)).
+
+    Returns
+    -------
+    dx, dy : ndarray, shape (M, L)
+        Displacement of each particle in each step [m].
+    theta : ndarray, shape (M, L)
+        Heading after each step [rad], not wrapped (continuous from ``x[:, 2]``).
+    """
+    x, u, dt = (np.asarray(a, dtype=float) for a in (x, u, dt))
+    sq = np.sqrt(dt)
+    ds = u[:, 0] * dt
+    dth = u[:, 1] * dt
+    if noise.mode == "control":
+        ds = ds + noise.sigma_v * sq * eps[..., 0]  # (M, L)
+        dth = dth + noise.sigma_omega * sq * eps[..., 1]
+    else:
+        dth = dth + noise.sigma_theta * sq * eps[..., 2]
+    theta_end = x[:, 2:3] + np.cumsum(dth, axis=1)  # heading after each step, (M, L)
+    # cos and sin of the heading at the start of each step, in single precision:
+    # numpy vectorises them (~10× faster than double here); a 1e-7 rad rounding
+    # of θ moves a ~5 mm step by 5e-10 m.
+    heading = (theta_end - dth).astype(np.float32)
+    dx = ds * np.cos(heading)
+    dy = ds * np.sin(heading)
+    if noise.mode != "control":
+        dx = dx + noise.sigma_xy * sq * eps[..., 0]
+        dy = dy + noise.sigma_xy * sq * eps[..., 1]
+    return dx, dy, theta_end
+
+
+def move_segment(x, u, dt, noise: MotionNoise, eps, *, check: bool = True, wrap: bool = True) -> np.ndarray:
     """:func:`move` through ``L`` consecutive steps at once, for ``M`` particles.
 
     Applying :func:`move` ``L`` times is a running sum: with the per-step
     increments ``Δs_j`` and ``Δθ_j`` (command plus noise, as in :func:`move`),
     the heading before step ``j`` is ``θ_j = θ_0 + Σ_{i<j} Δθ_i`` and the position
-    after it is ``x_0 + Σ_{i≤j} Δs_i (cos θ_i, sin θ_i)``. Two cumulative sums
-    replace a Python loop over the ``L`` steps, which is what makes full-rate
-    odometry (~65 Hz) cheap for the filter. The result equals ``L`` calls of
-    :func:`move` with ``eps[:, j]`` to rounding (tested).
+    after it is ``x_0 + Σ_{i≤j} Δs_i (cos θ_i, sin θ_i)`` (:func:`segment_increments`).
+    Cumulative sums replace a Python loop over the ``L`` steps, which is what
+    makes full-rate odometry (~65 Hz) cheap for the filter. The result equals
+    ``L`` calls of :func:`move` with ``eps[:, j]`` to rounding (tested).
 
     Parameters
     ----------
@@ -395,41 +437,28 @@ def move_segment(x, u, dt, noise: MotionNoise, eps, *, check: bool = True) -> np
     noise : MotionNoise
     eps : array_like, shape (M, L, noise.n_draws)
         Standard normal draws.
-
     check : bool
-        Validate the inputs (the filter, which validated its stream once, passes False).
+        Validate the inputs (callers that validated their stream once pass False).
+    wrap : bool
+        Wrap the headings to (-π, π]; with False they run on continuously from ``x[:, 2]``.
 
     Returns
     -------
     ndarray, shape (M, L, 3)
-        Every pose after each step (heading wrapped).
+        Every pose after each step.
     """
-    x, u, dt = (np.asarray(a, dtype=float) for a in (x, u, dt))
+    x = np.asarray(x, dtype=float)
     if check:
         _check_segment(x, u, dt, noise, eps)
-    M, L = x.shape[0], u.shape[0]
-    sq = np.sqrt(dt)
-    ds = u[:, 0] * dt
-    dth = u[:, 1] * dt
-    if noise.mode == "control":
-        ds = ds + noise.sigma_v * sq * eps[..., 0]  # (M, L)
-        dth = dth + noise.sigma_omega * sq * eps[..., 1]
-        ex = ey = 0.0
-    else:
-        ds = np.broadcast_to(ds, (M, L))
-        ex = np.cumsum(noise.sigma_xy * sq * eps[..., 0], axis=1)
-        ey = np.cumsum(noise.sigma_xy * sq * eps[..., 1], axis=1)
-        dth = dth + noise.sigma_theta * sq * eps[..., 2]
-    dth = np.broadcast_to(dth, (M, L))
-    theta_end = x[:, 2:3] + np.cumsum(dth, axis=1)  # heading after each step
-    theta_start = theta_end - dth  # heading at the start of each step
-    path = np.empty((M, L, 3))
-    # cos and sin in single precision: numpy vectorises them (~10× faster than
-    # double here); a 1e-7 rad rounding of θ moves a ~5 mm step by 5e-10 m.
-    heading = theta_start.astype(np.float32)
-    path[..., 0] = x[:, 0:1] + np.cumsum(ds * np.cos(heading), axis=1) + ex
-    path[..., 1] = x[:, 1:2] + np.cumsum(ds * np.sin(heading), axis=1) + ey
-    path[..., 2] = wrap_angle(theta_end)
+    return path_from_increments(x, *segment_increments(x, u, dt, noise, eps), wrap=wrap)
+
+
+def path_from_increments(x, dx, dy, theta, *, wrap: bool = True) -> np.ndarray:
+    """Poses (M, L, 3) after each step from :func:`segment_increments`: ``x_0`` plus running sums."""
+    path = np.empty(np.shape(dx) + (3,))
+    path[..., 0] = x[:, 0:1] + np.cumsum(dx, axis=1)
+    path[..., 1] = x[:, 1:2] + np.cumsum(dy, axis=1)
+    path[..., 2] = wrap_angle(theta) if wrap else theta
     return path
 
 
@@ -461,4 +490,6 @@ def sample_motion(x, u, dt: float, noise: MotionNoise, rng: np.random.Generator)
     return move(x, u, dt, noise, eps)
 
 
-__all__ = ["MotionNoise", "advance", "propagate", "propagate_arc", "move", "sample_motion"]
+__all__ = ["MotionNoise", "advance", "propagate", "propagate_arc", "move", "move_segment", "segment_increments",
+           "path_from_increments",
+           "sample_motion"]

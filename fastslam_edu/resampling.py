@@ -169,7 +169,12 @@ def inverse_cdf(u, w) -> np.ndarray:
     ndarray of intp, shape (n,)
         Indices in ``0 … M-1``.
     """
-    c = cumulative_weights(validate_weights(w))
+    return _inverse_cdf(u, validate_weights(w))
+
+
+def _inverse_cdf(u, w: np.ndarray) -> np.ndarray:
+    """:func:`inverse_cdf` for weights already validated (the resamplers check them once)."""
+    c = cumulative_weights(w)
     u = np.clip(np.asarray(u, dtype=float), 0.0, _BELOW_ONE)
     return np.searchsorted(c, u, side="right")
 
@@ -214,7 +219,7 @@ def multinomial(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray
     w = validate_weights(w)
     n = _number_of_draws(n, w.size)
     u = np.sort(rng.random(n))
-    return inverse_cdf(u, w)
+    return _inverse_cdf(u, w)
 
 
 def stratified(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
@@ -241,7 +246,7 @@ def stratified(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
     w = validate_weights(w)
     n = _number_of_draws(n, w.size)
     u = (np.arange(n) + rng.random(n)) / n
-    return inverse_cdf(u, w)
+    return _inverse_cdf(u, w)
 
 
 def systematic(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
@@ -269,7 +274,7 @@ def systematic(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
     w = validate_weights(w)
     n = _number_of_draws(n, w.size)
     u = (np.arange(n) + rng.random()) / n
-    return inverse_cdf(u, w)
+    return _inverse_cdf(u, w)
 
 
 def residual(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:

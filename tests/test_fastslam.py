@@ -559,6 +559,43 @@ def test_combined_pose_closed_form():
     np.testing.assert_allclose(out2[0], out, atol=1e-12)
 
 
+@pytest.mark.parametrize("spread", [0.05, 1.0, 3.0])
+def test_combined_heading_single_precision_path_equals_the_direct_formula(spread):
+    """Many headings (M × L > 256): the float32 relative computation vs atan2 of float64 sums."""
+    rng = np.random.default_rng(3)
+    theta = wrap_angle(np.pi - 0.02 + spread * rng.standard_normal((50, 40)))  # straddling ±π
+    w = rng.random(50)
+    w /= w.sum()
+    direct = np.arctan2(w @ np.sin(theta), w @ np.cos(theta))
+    got = fs.combined_heading(theta, w)
+    assert np.abs(wrap_angle(got - direct)).max() < 1e-6
+    assert np.all((got > -np.pi) & (got <= np.pi))
+    if spread < 0.1:
+        assert np.abs(wrap_angle(got - direct)).max() < 1e-8
+
+
+@pytest.mark.parametrize("L", [1, 7, 40])
+def test_propagate_segment_records_what_propagate_computes(L):
+    """Same random numbers, same final poses (bitwise); the estimates are those of the full path."""
+    rng = np.random.default_rng(L)
+    u = np.column_stack([0.2 + 0.05 * rng.random(L), rng.standard_normal(L)])
+    dt = rng.uniform(0.005, 0.03, L)
+    a = ParticleSet.initial(30, 2, (1.0, -2.0, 3.1))
+    a.poses[:, 2] = wrap_angle(3.1 + 0.2 * rng.standard_normal(30))
+    b = ParticleSet(a.poses.copy(), a.mu.copy(), a.sigma.copy(), a.seen.copy(), a.logw.copy())
+    w = rng.random(30)
+    w /= w.sum()
+    path = fs.propagate(a, u, dt, SIM.odometry_noise, np.random.default_rng(9))
+    mean, best = fs.propagate_segment(b, u, dt, SIM.odometry_noise, np.random.default_rng(9), w)
+    np.testing.assert_array_equal(a.poses, b.poses)
+    np.testing.assert_allclose(a.poses[:, :2], path[:, -1, :2], atol=1e-12)
+    expected = combined_pose(path, w)
+    np.testing.assert_allclose(mean[:, :2], expected[:, :2], atol=1e-12)
+    assert np.abs(wrap_angle(mean[:, 2] - expected[:, 2])).max() < 1e-7
+    np.testing.assert_allclose(best[:, :2], path[np.argmax(w), :, :2], atol=1e-12)
+    np.testing.assert_allclose(best[:, 2], wrap_angle(path[np.argmax(w), :, 2]), atol=1e-12)
+
+
 def test_combined_map_mixture_closed_form():
     ps = ParticleSet.initial(2, 3, (0.0, 0.0, 0.0))
     w = np.array([0.25, 0.75])
