@@ -105,6 +105,7 @@ def params_dict(params: FastSLAMParams) -> dict:
         "resample_threshold": params.resample_threshold,
         "gate_chi2": params.gate_chi2,
         "gate_escape_s": params.gate_escape_s,
+        "measurement_correlation_s": params.measurement_correlation_s,
         "mode": params.mode,
         "odometry_scale": list(params.odometry_scale),
         "range_std_slope": params.range_std_slope,

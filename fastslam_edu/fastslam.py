@@ -10,7 +10,9 @@ The filter of Montemerlo et al. (2002), in the order of the MR.CLAM write-up's
    a landmark seen for the first time is initialised from the inverse model
    (:func:`fastslam_edu.ekf.initialise_landmark`); otherwise its 2×2 EKF is
    updated and the particle's log weight grows by the log-likelihood
-   :math:`\\log \\mathcal N(\\nu; 0, Q)` (:func:`fastslam_edu.ekf.update_landmark`).
+   :math:`\\log \\mathcal N(\\nu; 0, Q)` (:func:`fastslam_edu.ekf.update_landmark`), times the
+   fraction :math:`\\beta \\le 1` of independent evidence the sighting carries
+   (:func:`evidence_fractions`; 1 in the textbook).
 3. **Resample** (:mod:`fastslam_edu.resampling`) when the effective sample size
    :math:`N_\\text{eff} = 1/\\sum_m (w^{[m]})^2` falls below a fraction of
    :math:`M` (default 0.5); weights are reset to uniform afterwards.
@@ -105,6 +107,18 @@ class FastSLAMParams:
       sightings of a filter that was merely uncertain. After a kidnap the
       escape brings the filter back within a minute (chapter "The write-up's
       experiments"), where the floored gate took ~500 s.
+    * **Tempered likelihoods**: a sighting :math:`\\Delta t` after the previous sighting of
+      the same landmark weighs the particles with its likelihood to the power
+      :math:`\\min(1, \\Delta t/\\tau)`, :math:`\\tau = 4` s (:func:`evidence_fractions`: the
+      bearing error's one-second correlation, 0.61, leaves about a quarter of an
+      independent reading's information per second). Measured, 20 seeds at full
+      rate on the six robots: mean of the median aligned landmark errors
+      0.151 → 0.109 m (every robot ≤ 0.20 m), path RMSE 0.77 → 0.64 m, landmark
+      error 0.91 → 0.80 m; τ = 10 s gives 0.105 / 0.74 / 0.89 m; a constant
+      exponent 0.125 gives 0.119 / 0.67 / 0.77 m. At 1 Hz on Dataset 1 robot 2:
+      path RMSE 0.78 → 0.74 m. Fewer resamplings keep more heading hypotheses
+      alive (particle depletion is what limits FastSLAM 1.0 here: 1000
+      particles without tempering give 0.112 / 0.59 / 0.67 m over 5 seeds).
     * **Resampling** when :math:`N_\\text{eff} < M/2`, the usual rule of thumb: it keeps
       the particle diversity that resampling at every step (the write-up's
       choice) throws away.
@@ -142,6 +156,13 @@ class FastSLAMParams:
         the sensor failed. A duration, not a count, because MR.CLAM's sightings
         of a landmark within a second are near-copies (one bad reading comes
         two or three times). None: never.
+    measurement_correlation_s : float or None
+        :math:`\\tau`: a sighting of a landmark :math:`\\Delta t` seconds after the previous
+        sighting of the same landmark weighs the particles with its likelihood to
+        the power :math:`\\beta = \\min(1, \\Delta t / \\tau)` (:func:`evidence_fractions`): its error
+        repeats the previous one's, so it carries only part of an independent
+        sighting's evidence. The EKF update of the landmark is unchanged. None:
+        every sighting counts fully (the textbook).
     mode : str
         ``"slam"``, ``"localize"`` (landmarks known, fixed) or ``"map"`` (poses known).
     range_std_slope : float
@@ -165,6 +186,7 @@ class FastSLAMParams:
     resample_threshold: float = 0.5
     gate_chi2: float | None = CHI2_2DOF_1E6
     gate_escape_s: float | None = 5.0
+    measurement_correlation_s: float | None = 4.0
     mode: str = "slam"
     odometry_scale: tuple[float, float] = (1.0, 1.0)
     range_std_slope: float = 0.06
@@ -184,6 +206,9 @@ class FastSLAMParams:
             raise ValueError(f"gate_chi2 must be positive or None, got {self.gate_chi2!r}")
         if self.gate_escape_s is not None and not float(self.gate_escape_s) >= 0:
             raise ValueError(f"gate_escape_s must be >= 0 seconds or None, got {self.gate_escape_s!r}")
+        tau = self.measurement_correlation_s
+        if tau is not None and not (np.isfinite(tau) and float(tau) > 0):
+            raise ValueError(f"measurement_correlation_s must be > 0 seconds or None, got {tau!r}")
         get_resampler(self.resampler)  # validates the name
         if not (np.isfinite(self.range_std_slope) and self.range_std_slope >= 0):
             raise ValueError(f"range_std_slope must be >= 0, got {self.range_std_slope!r}")
@@ -243,9 +268,11 @@ class ParticleSet:
         self.count[:] = 1
         return self
 
-    def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None) -> np.ndarray:
+    def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
+               power=None) -> np.ndarray:
         """Step 2 for the measurements of one instant: :func:`update_with_measurements`."""
-        return update_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2, escape=escape)
+        return update_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2, escape=escape,
+                                        power=power)
 
     def to_particle_set(self) -> "ParticleSet":
         """The set as dense arrays: itself (see the tree storage of :mod:`fastslam_edu.fastslam_tree`)."""
@@ -357,6 +384,7 @@ def update_with_measurement(
     update_map: bool = True,
     gate_chi2: float | None = None,
     escape: bool = False,
+    power: float = 1.0,
 ) -> bool:
     """Step 2 for one measurement ``z = (r, φ)`` of landmark ``k``, all particles at once.
 
@@ -371,7 +399,8 @@ def update_with_measurement(
     particle that has seen the landmark): it changes neither weights nor
     maps. ``escape=True`` applies it without the gate (the run does so once
     every sighting of the landmark for ``gate_escape_s`` seconds has been
-    unexplained: then it is the filter that is wrong, not the measurement).
+    unexplained: then it is the filter that is wrong, not the measurement). ``power``
+    :math:`\\beta` scales the log-likelihood added to the weights (:func:`evidence_fractions`).
 
     Returns
     -------
@@ -386,6 +415,8 @@ def update_with_measurement(
         mu, sigma, loglik, d2 = update_landmark_unchecked(
             particles.mu[idx, k], particles.sigma[idx, k], particles.poses[idx], z, R
         )
+        if power != 1.0:
+            loglik = power * loglik
         used = True
         if gate_chi2 is not None:
             mu, sigma, loglik, used, explained = gate_measurements(
@@ -460,6 +491,7 @@ def update_with_measurements(
     update_map: bool = True,
     gate_chi2: float | None = None,
     escape=None,
+    power=None,
 ) -> np.ndarray:
     """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,).
 
@@ -467,7 +499,8 @@ def update_with_measurements(
     they are applied at once on (M, n) arrays — the same numbers as applying
     them one by one with :func:`update_with_measurement` (log weights add).
     A landmark seen twice at one instant is applied in a second round, after
-    the first. ``escape`` (n,) bool: measurements applied without the gate.
+    the first. ``escape`` (n,) bool: measurements applied without the gate;
+    ``power`` (n,): the exponents :math:`\\beta` of their likelihoods (default 1).
     Returns a bool (n,): False where no particle explains the measurement
     (rejected by the gate, unless escaped).
     """
@@ -477,9 +510,11 @@ def update_with_measurements(
     if R.ndim == 2:
         R = np.broadcast_to(R, (len(k), 2, 2))  # one R per measurement
     escape = np.zeros(len(k), dtype=bool) if escape is None else np.broadcast_to(np.asarray(escape, dtype=bool), k.shape)
+    power = np.ones(len(k)) if power is None else np.broadcast_to(np.asarray(power, dtype=float), k.shape)
     if len(k) == 1:  # the common case: one landmark, read and written through views (no copies)
         return np.array([update_with_measurement(
-            particles, z[0], int(k[0]), R[0], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[0])
+            particles, z[0], int(k[0]), R[0], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[0]),
+            power=float(power[0]),
         )])
     explained = np.ones(len(k), dtype=bool)
     if len(set(k.tolist())) < len(k):  # the same landmark twice: distinct ones first, then the rest
@@ -487,16 +522,19 @@ def update_with_measurements(
         rest = np.setdiff1d(np.arange(len(k)), first)
         for part in (first, rest):
             explained[part] = update_with_measurements(
-                particles, z[part], k[part], R[part], update_map=update_map, gate_chi2=gate_chi2, escape=escape[part]
+                particles, z[part], k[part], R[part], update_map=update_map, gate_chi2=gate_chi2, escape=escape[part],
+                power=power[part],
             )
         return explained
     seen = particles.seen[:, k]  # (M, n), a copy
     batch = np.ones(len(k), dtype=bool) if seen.all() else seen.all(axis=0)  # seen by every particle: the common case
     if batch.any():
-        kb, zb, Rb, eb = (k, z, R, escape) if batch.all() else (k[batch], z[batch], R[batch], escape[batch])
+        kb, zb, Rb, eb, pb = ((k, z, R, escape, power) if batch.all()
+                              else (k[batch], z[batch], R[batch], escape[batch], power[batch]))
         mu, sigma, loglik, d2 = update_landmark_unchecked(
             particles.mu[:, kb], particles.sigma[:, kb], particles.poses[:, None, :], zb, Rb
         )  # (M, nb, ...)
+        loglik = loglik * pb
         used = True
         if gate_chi2 is not None:
             mu, sigma, loglik, used, explained[batch] = gate_measurements(
@@ -509,9 +547,40 @@ def update_with_measurements(
     if not batch.all():
         for j in np.flatnonzero(~batch):  # first sightings (or particles that differ)
             explained[j] = update_with_measurement(
-                particles, z[j], int(k[j]), R[j], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[j])
+                particles, z[j], int(k[j]), R[j], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[j]),
+                power=float(power[j]),
             )
     return explained
+
+
+def evidence_fractions(t, landmarks, last_seen, tau: float | None) -> np.ndarray:
+    """Exponents :math:`\\beta = \\min(1, \\Delta t / \\tau)` of the likelihoods of sightings at time ``t``.
+
+    :math:`\\Delta t` is the time since the previous sighting of the same landmark
+    (``last_seen`` (K,) [s], ``-inf`` if none; updated in place to ``t``).
+
+    Why: FastSLAM multiplies the likelihoods of all sightings as if their errors
+    were independent. MR.CLAM's are not: a landmark's range and bearing errors
+    persist for seconds (correlation of the residuals against groundtruth,
+    Dataset 6: range 0.87 after 1 s, 0.59 after 4 s; bearing 0.61 and 0.50),
+    and a landmark in view is read 2–3 times per second. Counted as
+    independent, a few seconds of near-copies make the weights far too peaked,
+    resampling throws away particles that were right, and the heading
+    hypotheses die out (particle depletion). Raising each likelihood to the
+    power β — a "tempered" likelihood — counts a sighting :math:`\\Delta t` after the
+    previous one as the fraction :math:`\\Delta t / \\tau` of an independent one. For an
+    AR(1) error with one-second correlation ρ, the new information per reading is
+    about :math:`(1-\\rho)/(1+\\rho)`: 0.24 for the bearing (:math:`\\tau \\approx 4` s), 0.07 for the
+    range (~14 s). ``tau=None`` gives β = 1 (the textbook).
+
+    Returns ``beta`` (n,) for ``landmarks`` (n,).
+    """
+    landmarks = np.asarray(landmarks, dtype=int)
+    if tau is None:
+        return np.ones(len(landmarks))
+    beta = np.minimum(1.0, (t - last_seen[landmarks]) / tau)
+    last_seen[landmarks] = t
+    return beta
 
 
 def resample_if_needed(
@@ -703,6 +772,7 @@ def run_fastslam(
     ess_t, ess = [], []
     n_resamples = used = rejected = 0
     unexplained_since = np.full(K, np.inf)  # per landmark: first of the sightings no particle explained, in a row
+    last_seen = np.full(K, -np.inf)  # per landmark: time of its latest sighting (for evidence_fractions)
     escape_after = np.inf if params.gate_escape_s is None else params.gate_escape_s
     kidnap_step = None
     if kidnap is not None:
@@ -737,9 +807,10 @@ def run_fastslam(
         if len(z):
             t_e = stream.t[e]
             escape = t_e - unexplained_since[lm] >= escape_after
+            power = evidence_fractions(t_e, lm, last_seen, params.measurement_correlation_s)
             explained = particles.update(
                 z, lm, params.measurement_covariance(z), update_map=update_map, gate_chi2=params.gate_chi2,
-                escape=escape,
+                escape=escape, power=power,
             )
             unexplained_since[lm] = np.where(explained, np.inf, np.minimum(unexplained_since[lm], t_e))
             ok = explained | escape
@@ -799,6 +870,7 @@ __all__ = [
     "combined_heading",
     "update_with_measurement",
     "update_with_measurements",
+    "evidence_fractions",
     "resample_if_needed",
     "combined_pose",
     "combined_map",

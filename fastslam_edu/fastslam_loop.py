@@ -26,7 +26,7 @@ import numpy as np
 
 from .datasets.log import EventStream
 from .ekf import initialise_landmark, innovation_statistics, update_landmark_one
-from .fastslam import FastSLAMParams, _segments
+from .fastslam import FastSLAMParams, _segments, evidence_fractions
 from .motion import move
 from .resampling import get_resampler
 from .weights import effective_sample_size, weights_from_log
@@ -46,7 +46,7 @@ class Particle:
         return copy.deepcopy(self)
 
 
-def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_chi2=None) -> None:
+def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_chi2=None, power: float = 1.0) -> None:
     """Lines 6–18 of FastSLAM_1 for one particle and one measurement.
 
     With a gate, if ``d² = νᵀQ⁻¹ν > gate_chi2`` the measurement is an outlier for
@@ -54,7 +54,8 @@ def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_
     landmark is left alone — unless the landmark was seen only once, which is
     then re-initialised from the new sighting at no cost in weight (one of its
     two sightings is wrong). The measurements no particle explains never get
-    here (:func:`is_explained`).
+    here (:func:`is_explained`). ``power`` β: the weight grows by β · log N(ν; 0, Q)
+    (:func:`fastslam_edu.fastslam.evidence_fractions`).
     """
     if j not in p.landmarks:
         p.landmarks[j] = initialise_landmark(p.pose, z, R)
@@ -62,6 +63,7 @@ def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_
         return
     mu, sigma = p.landmarks[j]
     mu_new, sigma_new, loglik = update_landmark_one(mu, sigma, p.pose, z, R)
+    loglik *= power
     if gate_chi2 is not None:
         _, d2 = innovation_statistics(mu, sigma, p.pose, z, R)
         if d2 > gate_chi2:
@@ -115,6 +117,7 @@ def run_fastslam_loop(
     path = np.empty((len(stream), 3))
     unexplained_since = np.full(stream.n_landmarks, np.inf)  # the escape from the gate, as the engine
     escape_after = np.inf if params.gate_escape_s is None else params.gate_escape_s
+    last_seen = np.full(stream.n_landmarks, -np.inf)
     for s, e in _segments(stream):
         eps = rng.standard_normal((M, e - s + 1, params.motion_noise.n_draws))
         w = weights_from_log(np.array([p.logw for p in particles]))
@@ -126,14 +129,16 @@ def run_fastslam_loop(
         if len(z) == 0:
             continue
         escape = stream.t[e] - unexplained_since[lm] >= escape_after
+        power = evidence_fractions(stream.t[e], lm, last_seen, params.measurement_correlation_s)
         explained = np.ones(len(lm), dtype=bool)
-        for i, (zi, j, R) in enumerate(zip(z, lm, params.measurement_covariance(z))):
+        for i, (zi, j, R, beta) in enumerate(zip(z, lm, params.measurement_covariance(z), power)):
             explained[i] = is_explained(particles, zi, int(j), R, params.gate_chi2)
             if not (explained[i] or escape[i]):
                 continue  # rejected: no particle explains it
             gate = None if escape[i] else params.gate_chi2
             for p in particles:
-                update_particle(p, zi, int(j), R, update_map=params.mode != "localize", gate_chi2=gate)
+                update_particle(p, zi, int(j), R, update_map=params.mode != "localize", gate_chi2=gate,
+                                power=float(beta))
         unexplained_since[lm] = np.where(explained, np.inf, np.minimum(unexplained_since[lm], stream.t[e]))
         w = weights_from_log(np.array([p.logw for p in particles]))
         if effective_sample_size(w) < params.resample_threshold * M:

@@ -51,7 +51,8 @@ SIM = SimConfig()
 R_SIM = np.diag([SIM.range_std**2, SIM.bearing_std**2])
 #: The filter with the simulator's own noise (the "noise known" case).
 MATCHED = FastSLAMParams(n_particles=50, motion_noise=SIM.odometry_noise, measurement_cov=R_SIM,
-                         range_std_slope=0.0)  # the simulator's range noise does not grow with range
+                         range_std_slope=0.0,  # the simulator's range noise does not grow with range
+                         measurement_correlation_s=None)  # and its sightings' errors are independent
 DURATION = 40.0
 
 
@@ -456,6 +457,38 @@ def test_gate_reinitialises_a_landmark_seen_once():
     ang = ps.poses[:, 2] + z[1]
     np.testing.assert_allclose(ps.mu[:, 0], ps.poses[:, :2] + 6.0 * np.column_stack([np.cos(ang), np.sin(ang)]))
     np.testing.assert_array_equal(ps.logw, 0.0)
+
+
+def test_evidence_fractions_closed_form():
+    """β = min(1, Δt/τ), Δt since the previous sighting of the same landmark; first sightings count fully."""
+    last = np.full(4, -np.inf)
+    np.testing.assert_array_equal(fs.evidence_fractions(10.0, [0, 2], last, 4.0), [1.0, 1.0])
+    np.testing.assert_allclose(fs.evidence_fractions(11.0, [0, 1], last, 4.0), [0.25, 1.0])
+    np.testing.assert_allclose(fs.evidence_fractions(19.0, [2, 0], last, 4.0), [1.0, 1.0])
+    np.testing.assert_allclose(fs.evidence_fractions(19.5, [2], last, 4.0), [0.125])
+    np.testing.assert_array_equal(last, [19.0, 11.0, 19.5, -np.inf])
+    np.testing.assert_array_equal(fs.evidence_fractions(20.0, [2, 3], last, None), [1.0, 1.0])
+
+
+@pytest.mark.parametrize("power", [1.0, 0.25, 0.0])
+def test_power_scales_only_the_weight(power):
+    """The EKF update is the textbook one whatever β; the log weight grows by β · log N(ν; 0, Q)."""
+    ps, ref = _gate_world(), _gate_world()
+    z = np.array([2.02, 0.01])
+    update_with_measurement(ps, z, 0, R_SIM, gate_chi2=None, power=power)
+    update_with_measurement(ref, z, 0, R_SIM, gate_chi2=None)
+    np.testing.assert_array_equal(ps.mu, ref.mu)
+    np.testing.assert_array_equal(ps.sigma, ref.sigma)
+    np.testing.assert_allclose(ps.logw, power * ref.logw, rtol=1e-15, atol=0)
+    batched = _gate_world()
+    update_with_measurements(batched, z[None], [0], R_SIM, power=[power])
+    np.testing.assert_array_equal(batched.logw, ps.logw)
+
+
+def test_measurement_correlation_must_be_positive():
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="measurement_correlation_s"):
+            FastSLAMParams(measurement_correlation_s=bad)
 
 
 def test_batched_gate_equals_one_measurement_at_a_time():

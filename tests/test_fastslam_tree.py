@@ -146,7 +146,8 @@ def test_the_comparison_can_fail(world):
 def test_particles_share_their_trees_after_a_run(world):
     data, _, stream = world
     K = stream.n_landmarks
-    b = run_fastslam_tree(stream, FastSLAMParams(n_particles=M, resample_threshold=1.0), 0)
+    b = run_fastslam_tree(stream, FastSLAMParams(n_particles=M, resample_threshold=1.0,
+                                                 measurement_correlation_s=None), 0)
     trees = b.trees.trees
     per_tree = [count_nodes(t) for t in trees]
     assert min(per_tree) > 0 and max(per_tree) <= 2 ** (tree_depth(K) + 1) - 1
