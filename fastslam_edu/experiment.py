@@ -112,6 +112,26 @@ def params_dict(params: FastSLAMParams) -> dict:
     }
 
 
+def params_table(params: FastSLAMParams, name: str = "FastSLAMParams()"):
+    """FastSLAMParams as one readable column (a pandas DataFrame), for the book.
+
+    Every field, with the motion noise's non-zero entries spelled out and
+    :math:`R` given as its standard deviations ``sigma_r [m]``, ``sigma_phi [rad]``.
+    """
+    import pandas as pd
+
+    rows = {}
+    for f in dataclasses.fields(params):
+        value = getattr(params, f.name)
+        if f.name == "motion_noise":
+            rows.update({f"motion_noise.{k}": v for k, v in dataclasses.asdict(value).items() if v})
+        elif f.name == "measurement_cov":
+            rows["sigma_r [m]"], rows["sigma_phi [rad]"] = np.sqrt(np.diag(value)).round(4)
+        else:
+            rows[f.name] = value
+    return pd.Series(rows, dtype=object).to_frame(name)
+
+
 def run_mrclam(
     path,
     robot: int,

@@ -628,9 +628,7 @@ def combined_heading(theta, w) -> np.ndarray:
     if theta.size <= 256:  # a few headings: the direct formula is fewer operations
         return wrap_angle(np.arctan2(w @ np.sin(theta), w @ np.cos(theta)))
     ref = theta[0]
-    delta = theta - ref
-    delta -= (2.0 * np.pi) * np.rint(delta * (0.5 / np.pi))  # to [-π, π]
-    delta = delta.astype(np.float32)
+    delta = wrap_angle(theta - ref).astype(np.float32)
     return wrap_angle(ref + np.arctan2(w @ np.sin(delta).astype(float), w @ np.cos(delta).astype(float)))
 
 

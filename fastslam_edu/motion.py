@@ -415,7 +415,7 @@ def segment_increments(x, u, dt, noise: MotionNoise, eps):
     return dx, dy, theta_end
 
 
-def move_segment(x, u, dt, noise: MotionNoise, eps, *, check: bool = True, wrap: bool = True) -> np.ndarray:
+def move_segment(x, u, dt, noise: MotionNoise, eps, *, check: bool = True) -> np.ndarray:
     """:func:`move` through ``L`` consecutive steps at once, for ``M`` particles.
 
     Applying :func:`move` ``L`` times is a running sum: with the per-step
@@ -439,22 +439,23 @@ def move_segment(x, u, dt, noise: MotionNoise, eps, *, check: bool = True, wrap:
         Standard normal draws.
     check : bool
         Validate the inputs (callers that validated their stream once pass False).
-    wrap : bool
-        Wrap the headings to (-π, π]; with False they run on continuously from ``x[:, 2]``.
 
     Returns
     -------
     ndarray, shape (M, L, 3)
-        Every pose after each step.
+        Every pose after each step (heading wrapped).
     """
     x = np.asarray(x, dtype=float)
     if check:
         _check_segment(x, u, dt, noise, eps)
-    return path_from_increments(x, *segment_increments(x, u, dt, noise, eps), wrap=wrap)
+    return path_from_increments(x, *segment_increments(x, u, dt, noise, eps))
 
 
 def path_from_increments(x, dx, dy, theta, *, wrap: bool = True) -> np.ndarray:
-    """Poses (M, L, 3) after each step from :func:`segment_increments`: ``x_0`` plus running sums."""
+    """Poses (M, L, 3) after each step from :func:`segment_increments`: ``x_0`` plus running sums.
+
+    ``wrap=False`` leaves the headings continuous from ``x[:, 2]`` (the filter wraps only what it keeps).
+    """
     path = np.empty(np.shape(dx) + (3,))
     path[..., 0] = x[:, 0:1] + np.cumsum(dx, axis=1)
     path[..., 1] = x[:, 1:2] + np.cumsum(dy, axis=1)
