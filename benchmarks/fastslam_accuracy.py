@@ -1,16 +1,18 @@
-"""FastSLAM 1.0 accuracy on MR.CLAM against the targets of the engine's issue.
+"""FastSLAM accuracy on MR.CLAM against the targets of the engine's issue.
 
 Every robot with groundtruth that the targets name — Dataset 1 robot 2 and the
 five robots of Dataset 6 — and Dataset 1 robot 1 (1 Hz groundtruth too) at full rate, with the default ``FastSLAMParams``
 (or ``--particles M``), over seeds 0 … N-1: the median and the worst of path
 RMSE, mean landmark error and aligned mean landmark error, next to the targets
-(≤ 0.5 m, ≤ 0.5 m, ≤ 0.25 m). Prints a table and writes JSON.
+(≤ 0.5 m, ≤ 0.5 m, ≤ 0.25 m). Prints a table and writes JSON. ``--proposal
+fastslam2`` runs FastSLAM 2.0's proposal instead of 1.0's (``FastSLAMParams.proposal``).
 
 This is an accuracy benchmark, not a speed one: runs go to ``--jobs``
 processes (default 2), so the filter times it records are not comparable
 with ``fastslam_mrclam.py``'s.
 
-Usage: python benchmarks/fastslam_accuracy.py [--seeds 10] [--particles 100] [--jobs 2] [--out FILE]
+Usage: python benchmarks/fastslam_accuracy.py [--seeds 10] [--particles 100] [--proposal motion|fastslam2]
+       [--jobs 2] [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data; about 30 s on 2 cores for 10 seeds)
 """
 
@@ -32,7 +34,7 @@ from machine import machine_info  # noqa: E402
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.datasets.events import event_stream  # noqa: E402
 from fastslam_edu.experiment import load_mrclam, params_dict, summarize  # noqa: E402
-from fastslam_edu.fastslam import FastSLAMParams, run_fastslam  # noqa: E402
+from fastslam_edu.fastslam import PROPOSALS, FastSLAMParams, run_fastslam  # noqa: E402
 
 ROBOTS = [(1, 2), (6, 1), (6, 2), (6, 3), (6, 4), (6, 5)]  # the issue's targets
 EXTRA = [(1, 1)]  # also has groundtruth (1 Hz), not named by the targets: a check of generalisation
@@ -46,9 +48,9 @@ def _load(dataset: int, robot: int):
 
 
 def _run(job) -> dict:
-    dataset, robot, seed, n_particles = job
+    dataset, robot, seed, params = job
     data, log, stream = _load(dataset, robot)
-    result = run_fastslam(stream, FastSLAMParams(n_particles=n_particles), np.random.default_rng(seed))
+    result = run_fastslam(stream, params, np.random.default_rng(seed))
     summary = summarize(result, data, log)
     return {"dataset": dataset, "robot": robot, "seed": seed, **{k: summary[k] for k in TARGETS},
             "measurements_rejected": summary["measurements_rejected"]}
@@ -58,11 +60,16 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--particles", type=int, default=100)
+    ap.add_argument("--proposal", choices=PROPOSALS, default="motion")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "fastslam_accuracy.json")
+    ap.add_argument("--out", type=Path, help="default: results/fastslam_accuracy[_fastslam2].json")
     args = ap.parse_args(argv)
+    if args.out is None:
+        suffix = "" if args.proposal == "motion" else f"_{args.proposal}"
+        args.out = Path(__file__).parent / "results" / f"fastslam_accuracy{suffix}.json"
+    params = FastSLAMParams(n_particles=args.particles, proposal=args.proposal)
     robots = ROBOTS + EXTRA
-    jobs = [(d, r, s, args.particles) for d, r in robots for s in range(args.seeds)]
+    jobs = [(d, r, s, params) for d, r in robots for s in range(args.seeds)]
     with ProcessPoolExecutor(args.jobs) as pool:
         runs = list(pool.map(_run, jobs, chunksize=args.seeds))
     table = []
@@ -77,7 +84,8 @@ def main(argv=None) -> int:
         row["rejected_median"] = statistics.median(x["measurements_rejected"] for x in mine)
         table.append(row)
 
-    print(f"FastSLAM 1.0, full rate, M = {args.particles}, seeds 0-{args.seeds - 1}: median (worst) [m]")
+    name = "FastSLAM 1.0" if args.proposal == "motion" else "FastSLAM 2.0 proposal"
+    print(f"{name}, full rate, M = {args.particles}, seeds 0-{args.seeds - 1}: median (worst) [m]")
     print(f"{'robot':<6} {'path RMSE ≤ 0.5':>18} {'landmarks ≤ 0.5':>18} {'aligned ≤ 0.25':>18} {'rejected':>9}")
     for row in table:
         cells = []
@@ -87,8 +95,7 @@ def main(argv=None) -> int:
         print(f"{row['robot']:<6} {cells[0]:>18} {cells[1]:>18} {cells[2]:>18} {row['rejected_median']:>9.0f}")
     print("* median above the target; " + ", ".join(f"D{d}R{r}" for d, r in EXTRA) + ": not named by the targets")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": machine_info(), "params": params_dict(FastSLAMParams(
-        n_particles=args.particles)), "seeds": args.seeds, "targets": TARGETS, "table": table, "runs": runs},
+    args.out.write_text(json.dumps({"machine": machine_info(), "params": params_dict(params), "seeds": args.seeds, "targets": TARGETS, "table": table, "runs": runs},
         indent=2))
     print(f"wrote {args.out}")
     return 0

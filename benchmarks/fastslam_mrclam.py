@@ -3,7 +3,9 @@
 (a) the write-up's setting: Dataset 1 robot 2, 1 Hz, 100 particles;
 (b) full rate, Dataset 1 robot 2, 100 and 1000 particles;
 (c) the textbook loop reference against the vectorised engine on the same work
-    (same stream, particles and seed), as a ratio measured in this run.
+    (same stream, particles and seed), as a ratio measured in this run;
+(d) full rate, 100 particles, with FastSLAM 2.0's proposal (``proposal="fastslam2"``):
+    its cost against (b) in the same run.
 
 The write-up's own code, measured on a machine like this one
 (../shared/reference/README.md): 11.9 s for its 1489-step loop (13.0 s whole run).
@@ -68,6 +70,7 @@ def main(argv=None) -> int:
     results["a_writeup_1hz_M100"] = case(onehz, dataset, log, base, seeds)
     results["b_full_M100"] = case(full, dataset, log, base, seeds)
     results["b_full_M1000"] = case(full, dataset, log, with_params(base, n_particles=1000), seeds[:2])
+    results["d_full_M100_fastslam2"] = case(full, dataset, log, with_params(base, proposal="fastslam2"), seeds)
     # (c) loop reference vs vectorised engine, same work, same seed
     t = time.perf_counter()
     run_fastslam_loop(onehz, base, np.random.default_rng(0))
@@ -79,13 +82,16 @@ def main(argv=None) -> int:
 
     print(f"machine: {results['machine'].get('cpu_model', '?')}, {results['machine']['cpu_count']} cores, numpy {results['machine']['numpy']}")
     print(f"{'case':<28} {'steps':>7} {'meas':>6} {'time [s]':>9} {'vs ref':>8} {'path RMSE':>10} {'lm err':>7} {'lm aligned':>10}")
-    for name in ("a_writeup_1hz_M100", "b_full_M100", "b_full_M1000"):
+    for name in ("a_writeup_1hz_M100", "b_full_M100", "b_full_M1000", "d_full_M100_fastslam2"):
         r = results[name]
         print(f"{name:<28} {r['steps']:>7} {r['measurements']:>6} {r['seconds_median']:>9.3f} "
               f"{REFERENCE_LOOP_SECONDS / r['seconds_median']:>7.0f}x {r['path_rmse_m_median']:>10.3f} "
               f"{r['landmark_error_mean_m_median']:>7.3f} {r['landmark_error_aligned_mean_m_median']:>10.3f}")
     c = results["c_loop_vs_vectorised_1hz_M100"]
     print(f"loop reference {c['loop_seconds']:.2f} s vs vectorised {c['vectorised_seconds']:.3f} s: {c['ratio']:.0f}x (same stream, M=100, seed 0)")
+    d = results["d_full_M100_fastslam2"]["seconds_median"] / results["b_full_M100"]["seconds_median"]
+    results["d_fastslam2_over_fastslam1_time"] = d
+    print(f"FastSLAM 2.0 proposal / FastSLAM 1.0, full rate, M=100: {d:.2f}x the time")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2))
     print(f"wrote {args.out}")

@@ -16,6 +16,7 @@ Landmark SLAM (FastSLAM 1.0)
     resampling      multinomial, systematic, stratified and residual resampling
     fastslam        the vectorised filter (propagate, update, resample, combine)
     fastslam_loop   the same filter, one particle at a time (the textbook form)
+    proposal        FastSLAM 2.0's proposal: the pose sampled given the sighting (an engine option)
     landmark_tree   Montemerlo's persistent balanced tree of landmark filters
     fastslam_tree   the filter with tree-backed maps (O(M log K) resampling)
     metrics         landmark and trajectory errors, SE(2) alignment

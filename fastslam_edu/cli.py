@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 
-from .fastslam import MODES, FastSLAMParams, with_params
+from .fastslam import MODES, PROPOSALS, FastSLAMParams, with_params
 
 
 def _positive_int(text: str) -> int:
@@ -43,6 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--rate", choices=("full", "1hz"), default="full", help="full-rate events or the write-up's 1 Hz cleaning")
     run.add_argument("--groundtruth", type=Path, help="groundtruth file (.dat or 1 Hz .csv) to score against")
     run.add_argument("--mode", choices=MODES, default="slam")
+    run.add_argument("--proposal", choices=PROPOSALS, default="motion",
+                     help="motion: FastSLAM 1.0 (default); fastslam2: FastSLAM 2.0's proposal")
     run.add_argument("--resampler", choices=("systematic", "stratified", "residual", "multinomial"), default="systematic")
     run.add_argument("--no-audit", action="store_true", help="do not correct swapped landmark table entries")
     run.add_argument("--json", type=Path, help="write the figures, parameters and seed to this JSON file")
@@ -120,7 +122,8 @@ def cmd_run(args) -> int:
 
     if not args.data.is_dir():
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
-    params = with_params(FastSLAMParams(), n_particles=args.particles, mode=args.mode, resampler=args.resampler)
+    params = with_params(FastSLAMParams(), n_particles=args.particles, mode=args.mode, resampler=args.resampler,
+                         proposal=args.proposal)
     result, summary, ctx = run_mrclam(
         args.data, args.robot, params, args.seed, rate=args.rate, groundtruth_file=args.groundtruth,
         progress=not args.quiet, audit=not args.no_audit,

@@ -109,6 +109,7 @@ def params_dict(params: FastSLAMParams) -> dict:
         "mode": params.mode,
         "odometry_scale": list(params.odometry_scale),
         "range_std_slope": params.range_std_slope,
+        "proposal": params.proposal,
     }
 
 

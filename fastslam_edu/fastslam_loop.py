@@ -105,6 +105,9 @@ def run_fastslam_loop(
     """
     if params.mode not in ("slam", "localize"):
         raise ValueError('the loop reference runs mode "slam" or "localize"')
+    if params.proposal != "motion":
+        raise ValueError("the loop reference is FastSLAM 1.0 only (proposal=\"motion\"); "
+                         "FastSLAM 2.0's one-particle form is fastslam_edu.proposal.improved_pose_one")
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
     x0 = np.asarray(stream.x0 if x0 is None else x0, dtype=float)
     M = params.n_particles

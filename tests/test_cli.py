@@ -87,6 +87,19 @@ def test_same_seed_same_figures(dataset_dir, tmp_path):
     assert a["path_rmse_m"] != c["path_rmse_m"]
 
 
+def test_proposal_option(dataset_dir, tmp_path, capsys):
+    """--proposal fastslam2 runs FastSLAM 2.0's proposal and says so in the JSON; an unknown one is refused."""
+    assert run_cli(dataset_dir, tmp_path, "--proposal", "fastslam2") == 0
+    summary = json.loads((tmp_path / "out.json").read_text())
+    assert summary["params"]["proposal"] == "fastslam2"
+    assert summary["path_rmse_aligned_m"] < 0.2 and summary["landmark_error_aligned_mean_m"] < 0.2
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
+        run_cli(dataset_dir, tmp_path, "--proposal", "fastslam3")
+    assert exit_info.value.code != 0
+    assert "invalid choice: 'fastslam3'" in capsys.readouterr().err
+
+
 def one_error_line(capsys) -> str:
     err = capsys.readouterr().err
     assert "Traceback" not in err

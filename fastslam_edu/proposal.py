@@ -1,0 +1,293 @@
+"""FastSLAM 2.0's proposal: sample the pose from the motion *and* the sighting.
+
+FastSLAM 1.0 samples the new pose from the motion model alone,
+:math:`x_t^{[m]} \\sim p(x_t \\mid x_{t-1}^{[m]}, u_t)`, and lets the importance weights
+sort the samples out. When the motion noise is wide compared with what a
+sighting says about the pose (MR.CLAM: the heading drifts ~0.3 rad a minute
+between sightings, a sighting pins it to a few hundredths), most samples land
+where the sighting says the robot is not; resampling then copies the few that
+fit, and the filter loses the diversity it needs later (*particle
+depletion*). FastSLAM 2.0 (Montemerlo et al. 2003) samples from the motion
+model *conditioned on the sighting*, linearised around the motion prediction
+:math:`\\bar x` (noise-free motion from the particle's previous pose, covariance :math:`P`):
+
+.. math::
+
+    S = G P G^\\top + Q, \\qquad K_x = P G^\\top S^{-1}, \\qquad
+    \\mu_x = \\bar x + K_x\\,(z - \\hat z(\\bar x)), \\qquad \\Sigma_x = (I - K_x G)\\,P
+
+with :math:`G = \\partial h/\\partial x` (2×3, :func:`fastslam_edu.measurement.jacobian_pose`)
+and :math:`Q = H \\Sigma H^\\top + R` the landmark's innovation covariance of FastSLAM 1.0.
+(The information form of the same Gaussian, :math:`\\Sigma_x = (G^\\top Q^{-1} G + P^{-1})^{-1}`,
+is the paper's; :func:`improved_pose_one` computes it that way.) The importance
+weight becomes the likelihood of the sighting with the pose integrated out,
+
+.. math::
+
+    w = \\mathcal N(z;\\ \\hat z(\\bar x),\\ S),
+
+which is how well the particle's *map* predicts the sighting, whatever its
+sampled pose. The landmark's EKF is then updated from the new pose, exactly as
+in FastSLAM 1.0.
+
+**How the engine samples it.** The engine has already drawn the motion sample
+:math:`\\hat x \\sim \\mathcal N(\\bar x, P)` (step 1, :mod:`fastslam_edu.motion`). It moves that
+sample by a *perturbed observation*,
+:math:`x = \\hat x + K_x\\,(z + \\varepsilon - \\hat z(\\hat x))`, :math:`\\varepsilon \\sim \\mathcal N(0, Q)`.
+For a linear :math:`h` this is a draw from :math:`\\mathcal N(\\mu_x, \\Sigma_x)` exactly: with
+:math:`\\hat x = \\bar x + \\delta`, :math:`x = \\mu_x + (I - K_x G)\\delta + K_x \\varepsilon`, whose covariance
+:math:`(I - K_x G)P(I - K_x G)^\\top + K_x Q K_x^\\top` is :math:`(I - K_x G)P` for this gain
+(tested against the closed form by simulation). So the motion step keeps its
+random numbers, and FastSLAM 1.0 and 2.0 differ only in the update step.
+
+Several sightings at one instant are used one after another, each with the
+pose Gaussian the previous one left (:math:`\\bar x \\leftarrow \\mu_x`, :math:`P \\leftarrow \\Sigma_x`); their
+log weights add.
+
+Between two sightings the engine moves through many odometry steps; :math:`P` is
+the motion noise of all of them carried to the end of the segment
+(:func:`segment_motion`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .angles import wrap_angle
+from .ekf import _det2, _inv2, _symmetrise, _transpose, gaussian_log_likelihood
+from .motion import MotionNoise, segment_increments
+
+
+def segment_motion(u, dt, noise: MotionNoise) -> tuple[np.ndarray, np.ndarray]:
+    """Noise-free motion through a segment of odometry steps, and its covariance.
+
+    In the frame of the starting pose (at the origin, heading 0): the end pose
+    :math:`\\Delta = (x_L, y_L, \\theta_L)` of the commands with no noise, and the
+    covariance :math:`P` of the end pose, linearised around that path. With noise
+    on the controls, step :math:`j` (heading :math:`\\theta_j` during the step, position
+    :math:`p_{j+1}` after it) contributes
+
+    * its speed noise (variance :math:`\\sigma_v^2 \\Delta t_j`) along :math:`(\\cos\\theta_j, \\sin\\theta_j, 0)`;
+    * its turn noise (variance :math:`\\sigma_\\omega^2 \\Delta t_j`), which rotates the rest of the
+      path about :math:`p_{j+1}`: along :math:`(-(y_L - y_{j+1}),\\ x_L - x_{j+1},\\ 1)`.
+
+    With noise on the state, each step adds :math:`\\sigma_{xy}^2 \\Delta t_j` to both
+    position variances and :math:`\\sigma_\\theta^2 \\Delta t_j` along the same rotation direction.
+    :math:`P = \\sum_j J_j \\operatorname{diag}(\\cdot) J_j^\\top`.
+
+    Parameters
+    ----------
+    u : array_like, shape (L, 2)
+        Commands ``(v, ω)`` [m/s, rad/s].
+    dt : array_like, shape (L,)
+        Step lengths [s].
+    noise : MotionNoise
+
+    Returns
+    -------
+    delta : ndarray, shape (3,)
+        End pose in the starting pose's frame [m, m, rad].
+    P_rel : ndarray, shape (3, 3)
+        Its covariance, in the same frame.
+    """
+    u = np.atleast_2d(np.asarray(u, dtype=float))
+    dt = np.atleast_1d(np.asarray(dt, dtype=float))
+    origin = np.zeros((1, 3))
+    dx, dy, theta = segment_increments(origin, u, dt, MotionNoise(), np.zeros((1, len(dt), 3)))
+    px, py, theta = np.cumsum(dx[0]), np.cumsum(dy[0]), theta[0]  # after each step
+    heading = theta - u[:, 1] * dt  # during each step
+    turn = np.stack([-(py[-1] - py), px[-1] - px, np.ones_like(px)], axis=1)  # (L, 3)
+    if noise.mode == "control":
+        along = np.stack([np.cos(heading), np.sin(heading), np.zeros_like(px)], axis=1)
+        P = (turn.T * noise.sigma_omega**2 * dt) @ turn + (along.T * noise.sigma_v**2 * dt) @ along
+    else:
+        P = (turn.T * noise.sigma_theta**2 * dt) @ turn
+        P[:2, :2] += np.eye(2) * noise.sigma_xy**2 * dt.sum()
+    return np.array([px[-1], py[-1], theta[-1]]), P
+
+
+def motion_prediction(x0, delta, P_rel) -> tuple[np.ndarray, np.ndarray]:
+    """:math:`\\bar x` and :math:`P` for particles starting at ``x0`` (M, 3).
+
+    The segment's :func:`segment_motion` rotated into each particle's frame:
+    :math:`\\bar x = x_0 \\oplus \\Delta`, :math:`P = T P_\\text{rel} T^\\top` with
+    :math:`T = \\operatorname{diag}(R(\\theta_0), 1)`. Returns (M, 3) and (M, 3, 3).
+    """
+    x0 = np.asarray(x0, dtype=float)
+    c, s = np.cos(x0[:, 2]), np.sin(x0[:, 2])
+    xbar = np.column_stack([x0[:, 0] + c * delta[0] - s * delta[1],
+                            x0[:, 1] + s * delta[0] + c * delta[1],
+                            x0[:, 2] + delta[2]])
+    T = np.zeros((len(x0), 3, 3))
+    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1], T[:, 2, 2] = c, -s, s, c, 1.0
+    return xbar, T @ P_rel @ np.swapaxes(T, 1, 2)
+
+
+def _predict(x, m):
+    """ẑ = h(x, m), H = ∂h/∂m and G = ∂h/∂x for (n, 3) poses and (n, 2) landmarks (unchecked)."""
+    d = m - x[:, :2]
+    q = np.einsum("ni,ni->n", d, d)
+    r = np.sqrt(q)
+    z_hat = np.column_stack([r, wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - x[:, 2])])
+    H = np.empty((len(x), 2, 2))
+    H[:, 0, 0], H[:, 0, 1] = d[:, 0] / r, d[:, 1] / r
+    H[:, 1, 0], H[:, 1, 1] = -d[:, 1] / q, d[:, 0] / q
+    G = np.zeros((len(x), 2, 3))
+    G[:, :, :2] = -H
+    G[:, 1, 2] = -1.0
+    return z_hat, H, G
+
+
+def _cholesky2(Q):
+    """Lower-triangular ``L`` with ``L Lᵀ = Q`` for each 2×2 covariance in (n, 2, 2)."""
+    L = np.zeros_like(Q)
+    L[:, 0, 0] = np.sqrt(Q[:, 0, 0])
+    L[:, 1, 0] = Q[:, 1, 0] / L[:, 0, 0]
+    L[:, 1, 1] = np.sqrt(Q[:, 1, 1] - L[:, 1, 0] ** 2)
+    return L
+
+
+def _innovation(z, z_hat):
+    nu = z - z_hat
+    nu[..., 1] = wrap_angle(nu[..., 1])
+    return nu
+
+
+def improved_pose(x_hat, x_bar, P, mu, Sigma, z, R, eps):
+    """The proposal for one sighting, for n particles at once (the engine's form).
+
+    Parameters
+    ----------
+    x_hat : ndarray (n, 3)
+        Motion samples :math:`\\hat x` [m, m, rad].
+    x_bar, P : ndarray (n, 3), (n, 3, 3)
+        Motion prediction :math:`\\bar x` and its covariance.
+    mu, Sigma : ndarray (n, 2), (n, 2, 2)
+        The landmark's EKF in each particle.
+    z : ndarray (2,)
+        The sighting ``(r, φ)``.
+    R : ndarray (2, 2)
+        Measurement noise.
+    eps : ndarray (n, 2)
+        Standard normal draws (the perturbation is :math:`L\\varepsilon`, :math:`LL^\\top = Q`).
+
+    Returns
+    -------
+    x : ndarray (n, 3)
+        The new pose samples (heading wrapped).
+    x_bar_new, P_new : ndarray (n, 3), (n, 3, 3)
+        :math:`\\mu_x` and :math:`\\Sigma_x`, for a further sighting at the same instant.
+    loglik : ndarray (n,)
+        :math:`\\log \\mathcal N(z; \\hat z(\\bar x), S)`.
+    d2 : ndarray (n,)
+        :math:`\\nu^\\top S^{-1} \\nu`, for the gate.
+    """
+    z_bar, H, G = _predict(x_bar, mu)
+    Q = H @ Sigma @ _transpose(H) + R
+    S = G @ P @ _transpose(G) + Q
+    det_S = _det2(S)
+    S_inv = _inv2(S, det_S)
+    K = P @ _transpose(G) @ S_inv  # (n, 3, 2)
+    nu_bar = _innovation(z, z_bar)
+    d2 = np.einsum("ni,nij,nj->n", nu_bar, S_inv, nu_bar)
+    loglik = -0.5 * d2 - np.log(2.0 * np.pi) - 0.5 * np.log(det_S)
+    z_hat = _predict(x_hat, mu)[0]
+    perturbation = np.einsum("nij,nj->ni", _cholesky2(Q), eps)
+    x = x_hat + np.einsum("nij,nj->ni", K, _innovation(z + perturbation, z_hat))
+    x[:, 2] = wrap_angle(x[:, 2])
+    x_bar_new = x_bar + np.einsum("nij,nj->ni", K, nu_bar)
+    return x, x_bar_new, _symmetrise(P - K @ G @ P), loglik, d2
+
+
+def improved_pose_one(x_bar, P, mu, Sigma, z, R):
+    """The proposal's Gaussian and weight for one particle, in the paper's information form.
+
+    :math:`\\Sigma_x = (G^\\top Q^{-1} G + P^{-1})^{-1}`,
+    :math:`\\mu_x = \\bar x + \\Sigma_x G^\\top Q^{-1} (z - \\hat z(\\bar x))`,
+    :math:`\\log w = \\log \\mathcal N(z; \\hat z(\\bar x), G P G^\\top + Q)`.
+    Shapes (3,), (3, 3), (2,), (2, 2), (2,), (2, 2); returns ``(mu_x, Sigma_x, log_w)``.
+    A plain version for teaching and for testing :func:`improved_pose` (a different
+    formula for the same numbers).
+    """
+    x_bar, P, mu, Sigma, z, R = (np.asarray(a, dtype=float) for a in (x_bar, P, mu, Sigma, z, R))
+    dx, dy = mu - x_bar[:2]
+    q = dx * dx + dy * dy
+    r = np.sqrt(q)
+    z_hat = np.array([r, wrap_angle(np.arctan2(dy, dx) - x_bar[2])])
+    H = np.array([[dx / r, dy / r], [-dy / q, dx / q]])
+    G = np.array([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]])
+    Q = H @ Sigma @ H.T + R
+    Q_inv = np.linalg.inv(Q)
+    Sigma_x = np.linalg.inv(G.T @ Q_inv @ G + np.linalg.inv(P))
+    nu = z - z_hat
+    nu[1] = wrap_angle(nu[1])
+    mu_x = x_bar + Sigma_x @ G.T @ Q_inv @ nu
+    S = G @ P @ G.T + Q
+    log_w = -0.5 * nu @ np.linalg.solve(S, nu) - np.log(2.0 * np.pi) - 0.5 * np.log(np.linalg.det(S))
+    return mu_x, Sigma_x, float(log_w)
+
+
+@dataclass
+class ProposalWeights:
+    """What :func:`sample_improved_poses` did, to put its weights in place of FastSLAM 1.0's.
+
+    ``pairs``: for each sighting ``j`` used, the particles ``idx`` it moved,
+    their :math:`\\beta\\,\\log \\mathcal N(z; \\hat z(\\bar x), S)` (``loglik_fs2``), and the
+    :math:`\\beta\\,\\log \\mathcal N(z; \\hat z(x), Q)` that FastSLAM 1.0's update will add for them
+    at their new poses (``loglik_fs1``).
+    """
+
+    pairs: list
+
+    def replace(self, logw, applied) -> None:
+        """Swap the weights in ``logw`` (M,) for the sightings with ``applied[j]`` True.
+
+        A sighting the update then rejected (``applied[j]`` False) added nothing,
+        so nothing is swapped for it.
+        """
+        for j, idx, loglik_fs2, loglik_fs1 in self.pairs:
+            if applied[j]:
+                logw[idx] += loglik_fs2 - loglik_fs1
+
+
+def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, power, rng,
+                          min_count: int = 2) -> ProposalWeights:
+    """Move the particles' poses by the proposal, for the sightings ``z`` (n, 2) of landmarks ``k`` (n,).
+
+    Used for each sighting of a landmark that the particle has used at least
+    ``min_count`` times (default 2: a landmark read once is only as good as that
+    one reading; 1 for a known map) and, with
+    the gate on and no ``escape``, only where :math:`d^2 = \\nu^\\top S^{-1} \\nu` is within
+    ``gate_chi2``: an outlier must not drag the pose. A landmark read twice at one
+    instant is used once (FastSLAM 1.0's update takes the second reading after
+    the first; its weight stays 1.0's). ``R`` (n, 2, 2), ``escape`` (n,) bool,
+    ``power`` (n,) the exponents :math:`\\beta` (:func:`fastslam_edu.fastslam.evidence_fractions`).
+    Changes ``particles.poses``; call :meth:`ProposalWeights.replace` after the
+    FastSLAM 1.0 update of the same sightings.
+    """
+    pairs = []
+    used = set()
+    x_bar, P = x_bar.copy(), P.copy()
+    for j, landmark in enumerate(np.asarray(k, dtype=int)):
+        if landmark in used:
+            continue
+        used.add(landmark)
+        idx = np.flatnonzero(particles.seen[:, landmark] & (particles.count[:, landmark] >= min_count))
+        if idx.size == 0:
+            continue
+        mu, Sigma = particles.mu[idx, landmark], particles.sigma[idx, landmark]
+        eps = rng.standard_normal((idx.size, 2))
+        x, x_bar_j, P_j, loglik, d2 = improved_pose(particles.poses[idx], x_bar[idx], P[idx], mu, Sigma, z[j], R[j], eps)
+        if gate_chi2 is not None and not escape[j]:
+            keep = d2 <= gate_chi2
+            idx, x, x_bar_j, P_j, loglik, mu, Sigma = (a[keep] for a in (idx, x, x_bar_j, P_j, loglik, mu, Sigma))
+            if idx.size == 0:
+                continue
+        particles.poses[idx] = x
+        x_bar[idx], P[idx] = x_bar_j, P_j
+        z_hat, H, _ = _predict(x, mu)
+        loglik_fs1 = gaussian_log_likelihood(_innovation(z[j], z_hat), H @ Sigma @ np.swapaxes(H, 1, 2) + R[j])
+        pairs.append((j, idx, power[j] * loglik, power[j] * loglik_fs1))
+    return ProposalWeights(pairs)
