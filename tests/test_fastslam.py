@@ -534,12 +534,12 @@ def test_gate_escape_recovers_from_a_kidnap(sim2):
 # --------------------------------------------------------------------------- kidnapping
 
 
-def _kidnap_case(sim2, with_measurement: bool):
+def _kidnap_case(sim2, with_measurement: bool, proposal: str = "motion"):
     data, log, stream = sim2
     has_meas = np.diff(stream.offsets) > 0
     k = int(np.flatnonzero(has_meas == with_measurement)[len(stream) // 4 if not with_measurement else 20])
     kp = np.array([1.0, -2.0, 2.5])
-    r = run_fastslam(stream, dataclasses.replace(MATCHED, n_particles=20), 0,
+    r = run_fastslam(stream, dataclasses.replace(MATCHED, n_particles=20, proposal=proposal), 0,
                      kidnap=(float(stream.t[k]) - 1e-4, tuple(kp)))
     return stream, k, kp, r
 
@@ -556,8 +556,9 @@ def test_kidnap_moves_every_particle(sim2, with_measurement):
     assert np.hypot(*(r.pose_best[k + 1, :2] - r.pose_mean[k + 1, :2])) < step
 
 
-def test_kidnap_pose_reported_at_a_measurement_step(sim2):
-    _, k, kp, r = _kidnap_case(sim2, True)
+@pytest.mark.parametrize("proposal", ["motion", "fastslam2"])
+def test_kidnap_pose_reported_at_a_measurement_step(sim2, proposal):
+    _, k, kp, r = _kidnap_case(sim2, True, proposal)
     np.testing.assert_allclose(r.pose_mean[k], kp, atol=1e-9)
 
 
