@@ -173,10 +173,11 @@ class FastSLAMParams:
         given the sighting too, :mod:`fastslam_edu.proposal`). Measured, 20 seeds at
         full rate, M = 100, on the six robots the issue's targets name
         (``benchmarks/fastslam_accuracy.py --proposal``), means of the per-robot medians:
-        path RMSE 0.64 → 0.53 m, landmark error 0.80 → 0.64 m, aligned 0.109 → 0.097 m,
-        mean of the worst path RMSEs 1.45 → 0.88 m; it resamples ~4× less often and
-        takes ~2.6× the time (chapter "FastSLAM 2.0's proposal"). At 1 Hz on Dataset 1
-        robot 2 (10 seeds) the median is unchanged (path RMSE 0.70 / 0.71 m).
+        path RMSE 0.64 → 0.51 m, landmark error 0.80 → 0.62 m, aligned 0.109 → 0.088 m,
+        mean of the worst path RMSEs 1.45 → 0.98 m; it resamples several times less often
+        (Dataset 6 robot 2: 86 against 531 times) and takes ~2.6× the time (chapter
+        "FastSLAM 2.0's proposal"). At 1 Hz on Dataset 1 robot 2 (10 seeds): path RMSE
+        0.70 → 0.61 m, aligned landmark error 0.154 → 0.094 m.
     range_std_slope : float
         Growth of the range noise with range [m/m]: the filter uses
         :math:`\\sigma_r(r) = \\sqrt{R_{00}} + \\text{slope}\\cdot r` for a measurement of range

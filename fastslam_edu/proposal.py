@@ -267,7 +267,7 @@ def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, po
     Changes ``particles.poses``; call :meth:`ProposalWeights.replace` after the
     FastSLAM 1.0 update of the same sightings.
     """
-    pairs = []
+    moved = []
     used = set()
     x_bar, P = x_bar.copy(), P.copy()
     for j, landmark in enumerate(np.asarray(k, dtype=int)):
@@ -287,7 +287,11 @@ def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, po
                 continue
         particles.poses[idx] = x
         x_bar[idx], P[idx] = x_bar_j, P_j
-        z_hat, H, _ = _predict(x, mu)
-        loglik_fs1 = gaussian_log_likelihood(_innovation(z[j], z_hat), H @ Sigma @ np.swapaxes(H, 1, 2) + R[j])
+        moved.append((j, idx, mu, Sigma, loglik))
+    # FastSLAM 1.0's update weighs every sighting at the final poses (after all the moves)
+    pairs = []
+    for j, idx, mu, Sigma, loglik in moved:
+        z_hat, H, _ = _predict(particles.poses[idx], mu)
+        loglik_fs1 = gaussian_log_likelihood(_innovation(z[j], z_hat), H @ Sigma @ _transpose(H) + R[j])
         pairs.append((j, idx, power[j] * loglik, power[j] * loglik_fs1))
     return ProposalWeights(pairs)

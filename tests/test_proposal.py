@@ -196,6 +196,30 @@ def test_the_weights_swap_leaves_the_fastslam2_weight():
     np.testing.assert_allclose(ps.logw - before, 0.5 * expected, atol=1e-9)
 
 
+def test_two_landmarks_at_one_instant_weigh_one_after_the_other():
+    """Sightings of landmarks 0 and 1 together: the weight is log N of the first plus log N of the second
+    under the pose Gaussian (μ_x, Σ_x) the first left (improved_pose_one twice); the swap must undo 1.0's
+    weights at the *final* poses."""
+    ps = _set()
+    ps.mu[:, 1] = [1.0, 3.0]
+    ps.sigma[:, 1] = np.diag([0.04, 0.02]) ** 2
+    ps.seen[:, 1] = True
+    ps.count[:, 1] = 5
+    z = np.stack([range_bearing(np.zeros(3), [3.0, 1.0]) + [0.02, 0.01],
+                  range_bearing(np.zeros(3), [1.0, 3.0]) + [-0.03, 0.02]])
+    x_bar, P = _prediction(ps)
+    expected = []
+    for m in range(3):
+        mu1, S1, w1 = improved_pose_one(x_bar[m], P[m], ps.mu[m, 0], ps.sigma[m, 0], z[0], R)
+        _, _, w2 = improved_pose_one(mu1, S1, ps.mu[m, 1], ps.sigma[m, 1], z[1], R)
+        expected.append(w1 + w2)
+    before = ps.logw.copy()
+    swap = _run_sampler(ps, z, [0, 1])
+    explained = update_with_measurements(ps, z, np.array([0, 1]), R, gate_chi2=27.6)
+    swap.replace(ps.logw, explained)
+    np.testing.assert_allclose(ps.logw - before, expected, atol=1e-9)
+
+
 def test_an_outlier_moves_no_pose_unless_escaped():
     ps = _set()
     z = range_bearing(np.zeros(3), [3.0, 1.0]) + [0.0, 1.0]  # bearing off by 1 rad
@@ -252,8 +276,8 @@ def test_fastslam2_localises_better_when_the_motion_is_noisy():
     """Noisy odometry (0.05 m/√s, 0.1 rad/√s), precise sightings (2 cm, 0.005 rad), the true map, M = 20.
 
     Measured over these 4 worlds: path RMSE 1.0 0.039–0.090 m (mean 0.057),
-    2.0 0.020–0.031 m (mean 0.025); the median effective sample size after an
-    update 1.0–1.1 of 20 for 1.0, 4.9–6.4 for 2.0.
+    2.0 0.018–0.031 m (mean 0.024); the median effective sample size after an
+    update 1.0–1.1 of 20 for 1.0, 12.9–13.8 for 2.0.
     """
     noise = MotionNoise(mode="control", sigma_v=0.05, sigma_omega=0.1)
     rs, bs = 0.02, 0.005
@@ -270,7 +294,7 @@ def test_fastslam2_localises_better_when_the_motion_is_noisy():
         ess2.append(np.median(b.ess))
     assert np.mean(two) < 0.6 * np.mean(one)
     assert max(two) < 0.05
-    assert np.median(ess2) > 3 * np.median(ess1)
+    assert np.median(ess2) > 8 * np.median(ess1)
 
 
 def test_fastslam2_same_seed_same_numbers():
