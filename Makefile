@@ -4,7 +4,11 @@
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
-export FASTSLAM_EDU_DATA ?= $(CURDIR)/data
+# The data folder ($FASTSLAM_EDU_DATA, default ./data), made absolute here: the notebooks run in notebooks/,
+# where a relative path would point somewhere else (a path starting with ~ is left to Python to expand).
+DATA := $(or $(FASTSLAM_EDU_DATA),$(CURDIR)/data)
+override FASTSLAM_EDU_DATA := $(if $(filter ~%,$(DATA)),$(DATA),$(abspath $(DATA)))
+export FASTSLAM_EDU_DATA
 
 .PHONY: venv book book-strict test test-package test-notebooks bench clean
 
