@@ -22,6 +22,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.ekf import gaussian_log_likelihood
@@ -113,6 +115,23 @@ def test_kalman_form_equals_the_information_form():
         np.testing.assert_allclose(x[0], [mu_x[0], mu_x[1], wrap_angle(mu_x[2])], atol=1e-10)
         np.testing.assert_allclose(P_new[0], Sigma_x, atol=1e-12)
         assert loglik[0] == pytest.approx(log_w, abs=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_a_sighting_never_widens_the_pose_gaussian(seed):
+    """For any particle: Σ_x is symmetric positive definite, P − Σ_x is positive semi-definite (information
+    only adds), and the Kalman form equals the information form."""
+    x_bar, P, mu, Sigma, z = _case(np.random.default_rng(seed))
+    _, x_bar_new, P_new, loglik, _ = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None], z, R,
+                                                   np.zeros((1, 2)))
+    mu_x, Sigma_x, log_w = improved_pose_one(x_bar, P, mu, Sigma, z, R)
+    np.testing.assert_allclose(P_new[0], P_new[0].T, atol=0)
+    assert np.linalg.eigvalsh(P_new[0]).min() > 0
+    assert np.linalg.eigvalsh(P - P_new[0]).min() > -1e-12
+    np.testing.assert_allclose(P_new[0], Sigma_x, atol=1e-12)
+    np.testing.assert_allclose(x_bar_new[0], mu_x, atol=1e-10)
+    assert np.isfinite(loglik[0]) and loglik[0] == pytest.approx(log_w, abs=1e-8)
 
 
 def test_the_perturbed_observation_draws_the_proposal():
