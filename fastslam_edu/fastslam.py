@@ -175,7 +175,7 @@ class FastSLAMParams:
         (``benchmarks/fastslam_accuracy.py --proposal``), means of the per-robot medians:
         path RMSE 0.64 → 0.51 m, landmark error 0.80 → 0.62 m, aligned 0.109 → 0.088 m,
         mean of the worst path RMSEs 1.45 → 0.98 m; it resamples several times less often
-        (Dataset 6 robot 2: 86 against 531 times) and takes ~2.6× the time (chapter
+        (Dataset 6 robot 2: 86 against 531 times) and takes ~2.2× the time (chapter
         "FastSLAM 2.0's proposal"). At 1 Hz on Dataset 1 robot 2 (10 seeds): path RMSE
         0.70 → 0.61 m, aligned landmark error 0.154 → 0.094 m.
     range_std_slope : float
@@ -285,10 +285,10 @@ class ParticleSet:
         return self
 
     def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
-               power=None) -> np.ndarray:
+               power=None, proposal_loglik=None) -> np.ndarray:
         """Step 2 for the measurements of one instant: :func:`update_with_measurements`."""
         return update_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2, escape=escape,
-                                        power=power)
+                                        power=power, proposal_loglik=proposal_loglik)
 
     def to_particle_set(self) -> "ParticleSet":
         """The set as dense arrays: itself (see the tree storage of :mod:`fastslam_edu.fastslam_tree`)."""
@@ -401,6 +401,7 @@ def update_with_measurement(
     gate_chi2: float | None = None,
     escape: bool = False,
     power: float = 1.0,
+    proposal_loglik=None,
 ) -> bool:
     """Step 2 for one measurement ``z = (r, φ)`` of landmark ``k``, all particles at once.
 
@@ -417,6 +418,9 @@ def update_with_measurement(
     every sighting of the landmark for ``gate_escape_s`` seconds has been
     unexplained: then it is the filter that is wrong, not the measurement). ``power``
     :math:`\\beta` scales the log-likelihood added to the weights (:func:`evidence_fractions`).
+    ``proposal_loglik`` (M,): where not NaN, the log-likelihood to weigh with instead of
+    :math:`\\log \\mathcal N(\\nu; 0, Q)` (FastSLAM 2.0's weight,
+    :func:`fastslam_edu.proposal.sample_improved_poses`).
 
     Returns
     -------
@@ -431,6 +435,8 @@ def update_with_measurement(
         mu, sigma, loglik, d2 = update_landmark_unchecked(
             particles.mu[idx, k], particles.sigma[idx, k], particles.poses[idx], z, R
         )
+        if proposal_loglik is not None:
+            loglik = _with_proposal_loglik(loglik, proposal_loglik[idx])
         if power != 1.0:
             loglik = power * loglik
         used = True
@@ -508,6 +514,7 @@ def update_with_measurements(
     gate_chi2: float | None = None,
     escape=None,
     power=None,
+    proposal_loglik=None,
 ) -> np.ndarray:
     """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,).
 
@@ -516,8 +523,9 @@ def update_with_measurements(
     them one by one with :func:`update_with_measurement` (log weights add).
     A landmark seen twice at one instant is applied in a second round, after
     the first. ``escape`` (n,) bool: measurements applied without the gate;
-    ``power`` (n,): the exponents :math:`\\beta` of their likelihoods (default 1).
-    Returns a bool (n,): False where no particle explains the measurement
+    ``power`` (n,): the exponents :math:`\\beta` of their likelihoods (default 1);
+    ``proposal_loglik`` (M, n): where not NaN, log-likelihoods to weigh with instead of
+    FastSLAM 1.0's (:func:`update_with_measurement`). Returns a bool (n,): False where no particle explains the measurement
     (rejected by the gate, unless escaped).
     """
     z = np.asarray(z, dtype=float).reshape(-1, 2)
@@ -527,10 +535,11 @@ def update_with_measurements(
         R = np.broadcast_to(R, (len(k), 2, 2))  # one R per measurement
     escape = np.zeros(len(k), dtype=bool) if escape is None else np.broadcast_to(np.asarray(escape, dtype=bool), k.shape)
     power = np.ones(len(k)) if power is None else np.broadcast_to(np.asarray(power, dtype=float), k.shape)
+    column = (lambda j: None) if proposal_loglik is None else (lambda j: proposal_loglik[:, j])  # noqa: E731
     if len(k) == 1:  # the common case: one landmark, read and written through views (no copies)
         return np.array([update_with_measurement(
             particles, z[0], int(k[0]), R[0], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[0]),
-            power=float(power[0]),
+            power=float(power[0]), proposal_loglik=column(0),
         )])
     explained = np.ones(len(k), dtype=bool)
     if len(set(k.tolist())) < len(k):  # the same landmark twice: distinct ones first, then the rest
@@ -539,7 +548,7 @@ def update_with_measurements(
         for part in (first, rest):
             explained[part] = update_with_measurements(
                 particles, z[part], k[part], R[part], update_map=update_map, gate_chi2=gate_chi2, escape=escape[part],
-                power=power[part],
+                power=power[part], proposal_loglik=column(part),
             )
         return explained
     seen = particles.seen[:, k]  # (M, n), a copy
@@ -550,6 +559,8 @@ def update_with_measurements(
         mu, sigma, loglik, d2 = update_landmark_unchecked(
             particles.mu[:, kb], particles.sigma[:, kb], particles.poses[:, None, :], zb, Rb
         )  # (M, nb, ...)
+        if proposal_loglik is not None:
+            loglik = _with_proposal_loglik(loglik, column(batch))
         loglik = loglik * pb
         used = True
         if gate_chi2 is not None:
@@ -564,9 +575,37 @@ def update_with_measurements(
         for j in np.flatnonzero(~batch):  # first sightings (or particles that differ)
             explained[j] = update_with_measurement(
                 particles, z[j], int(k[j]), R[j], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[j]),
-                power=float(power[j]),
+                power=float(power[j]), proposal_loglik=column(j),
             )
     return explained
+
+
+def _with_proposal_loglik(loglik, proposal_loglik):
+    """FastSLAM 1.0's log-likelihoods, replaced by the proposal's where it gives one (not NaN)."""
+    return np.where(np.isnan(proposal_loglik), loglik, proposal_loglik)
+
+
+class GateEscape:
+    """When a landmark's sightings escape the gate (``FastSLAMParams.gate_escape_s``).
+
+    Per landmark, the time of the first of its sightings that no particle has
+    explained since (``unexplained_since``, ``inf`` while they are explained).
+    Once that is ``escape_s`` seconds ago, its sightings are applied without the
+    gate until one is explained again. Shared by the engine and the loop reference.
+    """
+
+    def __init__(self, n_landmarks: int, escape_s: float | None):
+        self.escape_s = np.inf if escape_s is None else float(escape_s)
+        self.unexplained_since = np.full(n_landmarks, np.inf)
+
+    def escaped(self, t: float, landmarks) -> np.ndarray:
+        """Bool (n,): the sightings of ``landmarks`` (n,) at time ``t`` that skip the gate."""
+        return t - self.unexplained_since[landmarks] >= self.escape_s
+
+    def record(self, t: float, landmarks, explained) -> None:
+        """Note which sightings at ``t`` some particle explained (``explained`` (n,) bool)."""
+        since = self.unexplained_since[landmarks]
+        self.unexplained_since[landmarks] = np.where(explained, np.inf, np.minimum(since, t))
 
 
 def evidence_fractions(t, landmarks, last_seen, tau: float | None) -> np.ndarray:
@@ -788,9 +827,8 @@ def run_fastslam(
     pose_best = np.empty((N, 3))
     ess_t, ess = [], []
     n_resamples = used = rejected = 0
-    unexplained_since = np.full(K, np.inf)  # per landmark: first of the sightings no particle explained, in a row
+    escapes = GateEscape(K, params.gate_escape_s)
     last_seen = np.full(K, -np.inf)  # per landmark: time of its latest sighting (for evidence_fractions)
-    escape_after = np.inf if params.gate_escape_s is None else params.gate_escape_s
     kidnap_step = None
     if kidnap is not None:
         kidnap_step = int(np.searchsorted(stream.t, kidnap[0], side="left"))
@@ -813,7 +851,8 @@ def run_fastslam(
         else:
             x_start = particles.poses.copy() if improved else None
             mean, best = propagate_segment(particles, u_all[s : e + 1], dt_all[s : e + 1], params.motion_noise, rng, w)
-        if kidnap_step is not None and s <= kidnap_step <= e:  # segments end at the kidnap step
+        kidnapped = kidnap_step is not None and s <= kidnap_step <= e  # segments end at the kidnap step
+        if kidnapped:
             particles.poses[:] = np.asarray(kidnap[1], dtype=float)
             mean, best = np.array(mean), np.array(best)
             mean[kidnap_step - s :] = best[kidnap_step - s :] = particles.poses[0]
@@ -824,21 +863,20 @@ def run_fastslam(
             pose_best[s:last] = best[: last - s]
         if len(z):
             t_e = stream.t[e]
-            escape = t_e - unexplained_since[lm] >= escape_after
+            escape = escapes.escaped(t_e, lm)
             power = evidence_fractions(t_e, lm, last_seen, params.measurement_correlation_s)
             R = params.measurement_covariance(z)
-            kidnapped = kidnap_step is not None and s <= kidnap_step <= e
+            proposal_loglik = None
             if improved and not kidnapped:  # FastSLAM 2.0: move the poses given the sightings first
                 x_bar, P = motion_prediction(x_start, *segment_motion(u_all[s : e + 1], dt_all[s : e + 1],
                                                                       params.motion_noise))
-                swap = sample_improved_poses(particles, z, lm, R, x_bar, P, gate_chi2=params.gate_chi2,
-                                             escape=escape, power=power, rng=rng, min_count=2 if update_map else 1)
+                proposal_loglik = sample_improved_poses(particles, z, lm, R, x_bar, P, gate_chi2=params.gate_chi2,
+                                                        escape=escape, rng=rng, min_count=2 if update_map else 1)
             explained = particles.update(
                 z, lm, R, update_map=update_map, gate_chi2=params.gate_chi2, escape=escape, power=power,
+                proposal_loglik=proposal_loglik,
             )
-            if improved and not kidnapped:
-                swap.replace(particles.logw, explained | escape)
-            unexplained_since[lm] = np.where(explained, np.inf, np.minimum(unexplained_since[lm], t_e))
+            escapes.record(t_e, lm, explained)
             ok = explained | escape
             used += int(ok.sum())
             rejected += int((~ok).sum())
@@ -897,6 +935,7 @@ __all__ = [
     "update_with_measurement",
     "update_with_measurements",
     "evidence_fractions",
+    "GateEscape",
     "resample_if_needed",
     "combined_pose",
     "combined_map",

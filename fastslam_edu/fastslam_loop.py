@@ -26,7 +26,7 @@ import numpy as np
 
 from .datasets.log import EventStream
 from .ekf import initialise_landmark, innovation_statistics, update_landmark_one
-from .fastslam import FastSLAMParams, _segments, evidence_fractions
+from .fastslam import FastSLAMParams, GateEscape, _segments, evidence_fractions
 from .motion import move
 from .resampling import get_resampler
 from .weights import effective_sample_size, weights_from_log
@@ -118,8 +118,7 @@ def run_fastslam_loop(
             p.count = {k: 1 for k in range(len(landmarks))}
     u = np.asarray(stream.u, dtype=float) * np.asarray(params.odometry_scale, dtype=float)  # as the engine
     path = np.empty((len(stream), 3))
-    unexplained_since = np.full(stream.n_landmarks, np.inf)  # the escape from the gate, as the engine
-    escape_after = np.inf if params.gate_escape_s is None else params.gate_escape_s
+    escapes = GateEscape(stream.n_landmarks, params.gate_escape_s)  # the escape from the gate, as the engine
     last_seen = np.full(stream.n_landmarks, -np.inf)
     for s, e in _segments(stream):
         eps = rng.standard_normal((M, e - s + 1, params.motion_noise.n_draws))
@@ -131,7 +130,7 @@ def run_fastslam_loop(
         z, lm = stream.measurements_at(e)
         if len(z) == 0:
             continue
-        escape = stream.t[e] - unexplained_since[lm] >= escape_after
+        escape = escapes.escaped(stream.t[e], lm)
         power = evidence_fractions(stream.t[e], lm, last_seen, params.measurement_correlation_s)
         explained = np.ones(len(lm), dtype=bool)
         for i, (zi, j, R, beta) in enumerate(zip(z, lm, params.measurement_covariance(z), power)):
@@ -142,7 +141,7 @@ def run_fastslam_loop(
             for p in particles:
                 update_particle(p, zi, int(j), R, update_map=params.mode != "localize", gate_chi2=gate,
                                 power=float(beta))
-        unexplained_since[lm] = np.where(explained, np.inf, np.minimum(unexplained_since[lm], stream.t[e]))
+        escapes.record(stream.t[e], lm, explained)
         w = weights_from_log(np.array([p.logw for p in particles]))
         if effective_sample_size(w) < params.resample_threshold * M:
             idx = get_resampler(params.resampler)(w, rng)

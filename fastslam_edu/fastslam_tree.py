@@ -117,10 +117,10 @@ class TreeParticleSet:
         return self
 
     def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
-               power=None) -> np.ndarray:
+               power=None, proposal_loglik=None) -> np.ndarray:
         """Step 2 for the measurements of one instant: :func:`update_trees_with_measurements`."""
         return update_trees_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2,
-                                              escape=escape, power=power)
+                                              escape=escape, power=power, proposal_loglik=proposal_loglik)
 
     def to_particle_set(self) -> ParticleSet:
         """The same particles as a dense :class:`~fastslam_edu.fastslam.ParticleSet` (:math:`O(MK)`)."""
@@ -134,7 +134,7 @@ class TreeParticleSet:
 
 def update_trees_with_measurements(
     particles: TreeParticleSet, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
-    power=None,
+    power=None, proposal_loglik=None,
 ) -> np.ndarray:
     """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,).
 
@@ -160,7 +160,7 @@ def update_trees_with_measurements(
     before = mu.copy(), sigma.copy(), seen.copy(), count.copy()
     measured = ParticleSet(poses=particles.poses, mu=mu, sigma=sigma, seen=seen, logw=particles.logw, count=count)
     explained = update_with_measurements(measured, z, local, R, update_map=update_map, gate_chi2=gate_chi2,
-                                        escape=escape, power=power)
+                                        escape=escape, power=power, proposal_loglik=proposal_loglik)
     particles.logw = measured.logw
     changed = ((mu != before[0]).any(axis=-1) | (sigma != before[1]).any(axis=(-2, -1))
                | (seen != before[2]) | (count != before[3]))  # (M, n')

@@ -51,13 +51,12 @@ the motion noise of all of them carried to the end of the segment
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from .angles import wrap_angle
-from .ekf import _det2, _inv2, _symmetrise, _transpose, gaussian_log_likelihood
-from .motion import MotionNoise, segment_increments
+from .ekf import _det2, _inv2, _symmetrise, _transpose
+from .measurement import innovation, jacobian_landmark, jacobian_pose, range_bearing
+from .motion import MotionNoise, path_from_increments, segment_increments
 
 
 def segment_motion(u, dt, noise: MotionNoise) -> tuple[np.ndarray, np.ndarray]:
@@ -95,8 +94,8 @@ def segment_motion(u, dt, noise: MotionNoise) -> tuple[np.ndarray, np.ndarray]:
     u = np.atleast_2d(np.asarray(u, dtype=float))
     dt = np.atleast_1d(np.asarray(dt, dtype=float))
     origin = np.zeros((1, 3))
-    dx, dy, theta = segment_increments(origin, u, dt, MotionNoise(), np.zeros((1, len(dt), 3)))
-    px, py, theta = np.cumsum(dx[0]), np.cumsum(dy[0]), theta[0]  # after each step
+    steps = segment_increments(origin, u, dt, MotionNoise(), np.zeros((1, len(dt), 3)))
+    px, py, theta = path_from_increments(origin, *steps, wrap=False)[0].T  # after each step
     heading = theta - u[:, 1] * dt  # during each step
     turn = np.stack([-(py[-1] - py), px[-1] - px, np.ones_like(px)], axis=1)  # (L, 3)
     if noise.mode == "control":
@@ -122,7 +121,7 @@ def motion_prediction(x0, delta, P_rel) -> tuple[np.ndarray, np.ndarray]:
                             x0[:, 2] + delta[2]])
     T = np.zeros((len(x0), 3, 3))
     T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1], T[:, 2, 2] = c, -s, s, c, 1.0
-    return xbar, T @ P_rel @ np.swapaxes(T, 1, 2)
+    return xbar, T @ P_rel @ _transpose(T)
 
 
 def _predict(x, m):
@@ -212,48 +211,18 @@ def improved_pose_one(x_bar, P, mu, Sigma, z, R):
     formula for the same numbers).
     """
     x_bar, P, mu, Sigma, z, R = (np.asarray(a, dtype=float) for a in (x_bar, P, mu, Sigma, z, R))
-    dx, dy = mu - x_bar[:2]
-    q = dx * dx + dy * dy
-    r = np.sqrt(q)
-    z_hat = np.array([r, wrap_angle(np.arctan2(dy, dx) - x_bar[2])])
-    H = np.array([[dx / r, dy / r], [-dy / q, dx / q]])
-    G = np.array([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]])
+    H, G = jacobian_landmark(x_bar, mu), jacobian_pose(x_bar, mu)
     Q = H @ Sigma @ H.T + R
     Q_inv = np.linalg.inv(Q)
     Sigma_x = np.linalg.inv(G.T @ Q_inv @ G + np.linalg.inv(P))
-    nu = z - z_hat
-    nu[1] = wrap_angle(nu[1])
+    nu = innovation(z, range_bearing(x_bar, mu))
     mu_x = x_bar + Sigma_x @ G.T @ Q_inv @ nu
     S = G @ P @ G.T + Q
     log_w = -0.5 * nu @ np.linalg.solve(S, nu) - np.log(2.0 * np.pi) - 0.5 * np.log(np.linalg.det(S))
     return mu_x, Sigma_x, float(log_w)
 
 
-@dataclass
-class ProposalWeights:
-    """What :func:`sample_improved_poses` did, to put its weights in place of FastSLAM 1.0's.
-
-    ``pairs``: for each sighting ``j`` used, the particles ``idx`` it moved,
-    their :math:`\\beta\\,\\log \\mathcal N(z; \\hat z(\\bar x), S)` (``loglik_fs2``), and the
-    :math:`\\beta\\,\\log \\mathcal N(z; \\hat z(x), Q)` that FastSLAM 1.0's update will add for them
-    at their new poses (``loglik_fs1``).
-    """
-
-    pairs: list
-
-    def replace(self, logw, applied) -> None:
-        """Swap the weights in ``logw`` (M,) for the sightings with ``applied[j]`` True.
-
-        A sighting the update then rejected (``applied[j]`` False) added nothing,
-        so nothing is swapped for it.
-        """
-        for j, idx, loglik_fs2, loglik_fs1 in self.pairs:
-            if applied[j]:
-                logw[idx] += loglik_fs2 - loglik_fs1
-
-
-def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, power, rng,
-                          min_count: int = 2) -> ProposalWeights:
+def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, rng, min_count: int = 2) -> np.ndarray:
     """Move the particles' poses by the proposal, for the sightings ``z`` (n, 2) of landmarks ``k`` (n,).
 
     Used for each sighting of a landmark that the particle has used at least
@@ -262,12 +231,16 @@ def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, po
     the gate on and no ``escape``, only where :math:`d^2 = \\nu^\\top S^{-1} \\nu` is within
     ``gate_chi2``: an outlier must not drag the pose. A landmark read twice at one
     instant is used once (FastSLAM 1.0's update takes the second reading after
-    the first; its weight stays 1.0's). ``R`` (n, 2, 2), ``escape`` (n,) bool,
-    ``power`` (n,) the exponents :math:`\\beta` (:func:`fastslam_edu.fastslam.evidence_fractions`).
-    Changes ``particles.poses``; call :meth:`ProposalWeights.replace` after the
-    FastSLAM 1.0 update of the same sightings.
+    the first; its weight stays 1.0's). ``R`` (n, 2, 2), ``escape`` (n,) bool.
+
+    Changes ``particles.poses`` and returns the weights, (M, n): :math:`\\log \\mathcal N(z; \\hat z(\\bar x), S)`
+    for each particle moved by sighting ``j``, NaN where the proposal was not used
+    (FastSLAM 1.0's weight applies there). FastSLAM 1.0's update of the same
+    sightings then takes them (``proposal_loglik`` of
+    :func:`fastslam_edu.fastslam.update_with_measurements`), with the gate and the
+    exponents :math:`\\beta` as for its own.
     """
-    moved = []
+    loglik = np.full((len(particles), len(z)), np.nan)
     used = set()
     x_bar, P = x_bar.copy(), P.copy()
     for j, landmark in enumerate(np.asarray(k, dtype=int)):
@@ -279,19 +252,12 @@ def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, po
             continue
         mu, Sigma = particles.mu[idx, landmark], particles.sigma[idx, landmark]
         eps = rng.standard_normal((idx.size, 2))
-        x, x_bar_j, P_j, loglik, d2 = improved_pose(particles.poses[idx], x_bar[idx], P[idx], mu, Sigma, z[j], R[j], eps)
+        x, x_bar_j, P_j, loglik_j, d2 = improved_pose(particles.poses[idx], x_bar[idx], P[idx], mu, Sigma, z[j], R[j],
+                                                      eps)
         if gate_chi2 is not None and not escape[j]:
             keep = d2 <= gate_chi2
-            idx, x, x_bar_j, P_j, loglik, mu, Sigma = (a[keep] for a in (idx, x, x_bar_j, P_j, loglik, mu, Sigma))
-            if idx.size == 0:
-                continue
+            idx, x, x_bar_j, P_j, loglik_j = (a[keep] for a in (idx, x, x_bar_j, P_j, loglik_j))
         particles.poses[idx] = x
         x_bar[idx], P[idx] = x_bar_j, P_j
-        moved.append((j, idx, mu, Sigma, loglik))
-    # FastSLAM 1.0's update weighs every sighting at the final poses (after all the moves)
-    pairs = []
-    for j, idx, mu, Sigma, loglik in moved:
-        z_hat, H, _ = _predict(particles.poses[idx], mu)
-        loglik_fs1 = gaussian_log_likelihood(_innovation(z[j], z_hat), H @ Sigma @ _transpose(H) + R[j])
-        pairs.append((j, idx, power[j] * loglik, power[j] * loglik_fs1))
-    return ProposalWeights(pairs)
+        loglik[idx, j] = loglik_j
+    return loglik

@@ -1,4 +1,4 @@
-"""Event streams made for tests (shared by the test files that need them)."""
+"""Simulated runs and event streams made for tests (shared by the test files that need them)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,23 @@ import dataclasses
 
 import numpy as np
 
+from fastslam_edu.datasets.events import event_stream
 from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.metrics import trajectory_errors
+from fastslam_edu.sim import simulate_dataset
+
+
+def simulate(seed: int, duration: float = 40.0, **overrides):
+    """(dataset, robot-1 log, full-rate event stream) of a simulation of ``duration`` seconds."""
+    data = simulate_dataset(seed, duration=duration, **overrides)
+    log = data.robots[1]
+    return data, log, event_stream(log, data.landmark_subjects)
+
+
+def path_rmse(t, poses, log) -> float:
+    """RMSE [m] of the positions ``poses`` (n, 3) at times ``t`` against the log's groundtruth."""
+    gt = log.groundtruth
+    return trajectory_errors(t, poses, gt["time"].to_numpy(), gt[["x", "y", "theta"]].to_numpy())["rmse"]
 
 
 def with_repeated_measurements(stream: EventStream, every: int) -> EventStream:

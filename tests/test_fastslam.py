@@ -30,7 +30,7 @@ import pytest
 
 from fastslam_edu import fastslam as fs
 from fastslam_edu.angles import wrap_angle
-from fastslam_edu.datasets.events import event_stream, groundtruth_at
+from fastslam_edu.datasets.events import groundtruth_at
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.ekf import update_landmark_one
 from fastslam_edu.fastslam import (
@@ -43,9 +43,10 @@ from fastslam_edu.fastslam import (
     update_with_measurement,
     update_with_measurements,
 )
-from fastslam_edu.metrics import landmark_errors, trajectory_errors
+from fastslam_edu.metrics import landmark_errors
 from fastslam_edu.motion import propagate
-from fastslam_edu.sim import SimConfig, simulate_dataset
+from fastslam_edu.sim import SimConfig
+from streams import path_rmse, simulate
 
 SIM = SimConfig()
 R_SIM = np.diag([SIM.range_std**2, SIM.bearing_std**2])
@@ -53,22 +54,9 @@ R_SIM = np.diag([SIM.range_std**2, SIM.bearing_std**2])
 MATCHED = FastSLAMParams(n_particles=50, motion_noise=SIM.odometry_noise, measurement_cov=R_SIM,
                          range_std_slope=0.0,  # the simulator's range noise does not grow with range
                          measurement_correlation_s=None)  # and its sightings' errors are independent
-DURATION = 40.0
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def simulate(seed: int, duration: float = DURATION, **overrides):
-    """(dataset, robot-1 log, full-rate event stream) of a simulation (default DURATION seconds)."""
-    data = simulate_dataset(seed, duration=duration, **overrides)
-    log = data.robots[1]
-    return data, log, event_stream(log, data.landmark_subjects)
-
-
-def path_rmse(t, poses, log) -> float:
-    gt = log.groundtruth
-    return trajectory_errors(t, poses, gt["time"].to_numpy(), gt[["x", "y", "theta"]].to_numpy())["rmse"]
 
 
 def dead_reckoning(stream: EventStream) -> np.ndarray:
