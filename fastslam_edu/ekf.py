@@ -50,6 +50,10 @@ from fastslam_edu.measurement import (
 )
 
 
+#: log(2π), the constant of the 2-D Gaussian log-density.
+LOG_2PI = float(np.log(2.0 * np.pi))
+
+
 def _transpose(A: np.ndarray) -> np.ndarray:
     """``Aᵀ`` of each matrix in a stack ``(..., n, k)``."""
     return np.swapaxes(A, -1, -2)
@@ -253,7 +257,8 @@ def update_landmark(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, np.ndar
     R = _check_covariance("R", R, caller)
 
     jacobian_landmark(x, mu)  # raises a clear ValueError if a landmark sits on the robot (r = 0)
-    mu_new, Sigma_new, log_likelihood, _ = update_landmark_unchecked(mu, Sigma, x, z, R)
+    # the unchecked update reads Σ's upper triangle: remove the (tolerated) rounding asymmetry first
+    mu_new, Sigma_new, log_likelihood, _ = update_landmark_unchecked(mu, _symmetrise(Sigma), x, z, R)
     return mu_new, Sigma_new, log_likelihood
 
 
@@ -264,8 +269,34 @@ def update_landmark_unchecked(mu, Sigma, x, z, R):
     checked once); it computes exactly what :func:`update_landmark` documents,
     plus the squared Mahalanobis distance of the innovation used by the outlier
     gate. Returns ``(mu_new, Sigma_new, log_likelihood, d2)``.
+
+    It is the two halves below in a row: :func:`innovation_unchecked` (predict
+    the measurement, compare, weigh) and :func:`kalman_correction_unchecked` (move
+    the landmark). The filter calls them separately so that the outlier gate can
+    look at ``d²`` before the landmark moves.
     """
-    # The same algebra as update_landmark, written out entry by entry for 2×2
+    terms, d2, log_likelihood = innovation_unchecked(mu, Sigma, x, z, R)
+    mu_new, Sigma_new = kalman_correction_unchecked(mu, terms)
+    return mu_new, Sigma_new, log_likelihood, d2
+
+
+def innovation_unchecked(mu, Sigma, x, z, R):
+    """First half of the EKF update: ``ẑ``, ``H``, ``Q``, ``ν``, ``d²`` and ``log N(ν; 0, Q)``.
+
+    Shapes as in :func:`update_landmark` (unchecked inputs; ``Σ`` must be exactly
+    symmetric, as every covariance the filter stores is).
+
+    Returns
+    -------
+    terms : tuple
+        What :func:`kalman_correction_unchecked` needs, entry by entry:
+        ``ν = (ν_r, ν_φ)``, ``P = H Σ`` (4 entries), ``Q⁻¹`` (3 entries) and ``Σ`` (3 entries).
+    d2 : ndarray, shape (...)
+        ``νᵀ Q⁻¹ ν``, the squared Mahalanobis distance (for the gate).
+    log_likelihood : ndarray, shape (...)
+        ``log N(ν; 0, Q) = −½ d² − log 2π − ½ log det Q``.
+    """
+    # The algebra of update_landmark written out entry by entry for 2×2
     # matrices: ~70 elementwise operations on (M,) arrays beat a dozen stacked
     # matmuls when M is in the hundreds.
     dx = mu[..., 0] - x[..., 0]
@@ -273,7 +304,7 @@ def update_landmark_unchecked(mu, Sigma, x, z, R):
     q = dx * dx + dy * dy
     r = np.sqrt(q)
     h00, h01, h10, h11 = dx / r, dy / r, -dy / q, dx / q  # H = ∂h/∂m
-    a, b, d = Sigma[..., 0, 0], 0.5 * (Sigma[..., 0, 1] + Sigma[..., 1, 0]), Sigma[..., 1, 1]
+    a, b, d = Sigma[..., 0, 0], Sigma[..., 0, 1], Sigma[..., 1, 1]
     R = np.asarray(R, dtype=float)
     p00, p01 = h00 * a + h01 * b, h00 * b + h01 * d  # P = H Σ
     p10, p11 = h10 * a + h11 * b, h10 * b + h11 * d
@@ -282,11 +313,28 @@ def update_landmark_unchecked(mu, Sigma, x, z, R):
     q11 = p10 * h10 + p11 * h11 + R[..., 1, 1]
     det_Q = q00 * q11 - q01 * q01
     i00, i01, i11 = q11 / det_Q, -q01 / det_Q, q00 / det_Q  # Q⁻¹
-    k00, k01 = p00 * i00 + p10 * i01, p00 * i01 + p10 * i11  # K = Σ Hᵀ Q⁻¹ = Pᵀ Q⁻¹
-    k10, k11 = p01 * i00 + p11 * i01, p01 * i01 + p11 * i11
     n0 = z[..., 0] - r  # ν = z ⊖ ẑ
     n1 = wrap_angle(z[..., 1] - (np.arctan2(dy, dx) - x[..., 2]))
-    mu_new = np.empty(np.shape(n0) + (2,))
+    d2 = n0 * (i00 * n0 + i01 * n1) + n1 * (i01 * n0 + i11 * n1)
+    log_likelihood = -0.5 * d2 - LOG_2PI - 0.5 * np.log(det_Q)
+    return (n0, n1, p00, p01, p10, p11, i00, i01, i11, a, b, d), d2, log_likelihood
+
+
+def kalman_correction_unchecked(mu, terms, apply=None):
+    """Second half of the EKF update: ``K = Σ Hᵀ Q⁻¹``, ``μ' = μ + K ν``, ``Σ' = Σ − K H Σ``.
+
+    ``terms`` from :func:`innovation_unchecked`. ``apply`` (bool, broadcasting with
+    the batch shape): where False the gain is zero, so ``μ' = μ`` and ``Σ' = Σ``
+    exactly — how the outlier gate leaves a landmark alone. Returns
+    ``(mu_new (..., 2), Sigma_new (..., 2, 2))``; ``Σ'`` is exactly symmetric.
+    """
+    n0, n1, p00, p01, p10, p11, i00, i01, i11, a, b, d = terms
+    if apply is not None:  # Q⁻¹ = 0 where not applied: then K = 0 exactly
+        apply = np.asarray(apply, dtype=float)
+        i00, i01, i11 = i00 * apply, i01 * apply, i11 * apply
+    k00, k01 = p00 * i00 + p10 * i01, p00 * i01 + p10 * i11  # K = Σ Hᵀ Q⁻¹ = Pᵀ Q⁻¹
+    k10, k11 = p01 * i00 + p11 * i01, p01 * i01 + p11 * i11
+    mu_new = np.empty(np.shape(k00) + (2,))
     mu_new[..., 0] = mu[..., 0] + k00 * n0 + k01 * n1
     mu_new[..., 1] = mu[..., 1] + k10 * n0 + k11 * n1
     # Σ' = (I − K H) Σ = Σ − K P, whose symmetric part is Σ − K Q Kᵀ (c01 below is
@@ -297,9 +345,7 @@ def update_landmark_unchecked(mu, Sigma, x, z, R):
     Sigma_new = np.empty(np.shape(c00) + (2, 2))
     Sigma_new[..., 0, 0], Sigma_new[..., 1, 1] = c00, c11
     Sigma_new[..., 0, 1] = Sigma_new[..., 1, 0] = c01
-    d2 = n0 * (i00 * n0 + i01 * n1) + n1 * (i01 * n0 + i11 * n1)
-    log_likelihood = -0.5 * d2 - np.log(2.0 * np.pi) - 0.5 * np.log(det_Q)
-    return mu_new, Sigma_new, log_likelihood, d2
+    return mu_new, Sigma_new
 
 
 def update_landmark_one(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, float]:

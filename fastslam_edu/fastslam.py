@@ -49,7 +49,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .datasets.log import EventStream
-from .ekf import initialise_landmark, update_landmark_unchecked
+from .ekf import initialise_landmark, innovation_unchecked, kalman_correction_unchecked
 from .angles import wrap_angle
 from .motion import MotionNoise, path_from_increments, segment_increments
 from .proposal import motion_prediction, sample_improved_poses, segment_motion
@@ -303,12 +303,12 @@ class ParticleSet:
         """
         idx = np.asarray(indices)
         return ParticleSet(
-            poses=self.poses[idx],
-            mu=self.mu[idx],
-            sigma=self.sigma[idx],
-            seen=self.seen[idx],
+            poses=np.take(self.poses, idx, axis=0),  # = self.poses[idx], with less overhead
+            mu=np.take(self.mu, idx, axis=0),
+            sigma=np.take(self.sigma, idx, axis=0),
+            seen=np.take(self.seen, idx, axis=0),
             logw=np.zeros(len(idx)),
-            count=self.count[idx],
+            count=np.take(self.count, idx, axis=0),
         )
 
 
@@ -336,7 +336,8 @@ def propagate(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.
     return path_from_increments(x0, dx, dy, theta, wrap=False)
 
 
-def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.Generator, w):
+def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.Generator, w,
+                      n_record: int | None = None):
     """Step 1 as the filter runs it: :func:`propagate`, returning only the estimates along the way.
 
     The same random numbers and the same final poses as :func:`propagate`, but
@@ -351,17 +352,26 @@ def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np
     u, dt, noise, rng : as :func:`propagate`.
     w : ndarray (M,)
         Normalised weights (constant along the segment: no measurement in it).
+    n_record : int, optional
+        Estimates for the first ``n_record`` steps only (default all ``L``): at a
+        measurement step the filter records its estimate after the update instead.
 
     Returns
     -------
-    mean, best : ndarray (L, 3)
+    mean, best : ndarray (n_record, 3)
         Weighted-mean pose (:func:`combined_pose`) and best particle's pose after each step.
     """
     x0, (dx, dy, theta) = _sample_segment(particles, u, dt, noise, rng)
+    L = dx.shape[1]
+    n = L if n_record is None else n_record
+    if n == 0:
+        return np.empty((0, 3)), np.empty((0, 3))
     b = int(np.argmax(w))
-    if dx.shape[1] == 1:  # one step (the 1 Hz stream): the poses are the new ones
+    if L == 1:  # one step (the 1 Hz stream): the poses are the new ones
         return combined_pose(particles.poses, w)[None], particles.poses[b][None]
-    mean = np.empty((dx.shape[1], 3))
+    if n < L:
+        dx, dy, theta = dx[:, :n], dy[:, :n], theta[:, :n]
+    mean = np.empty((n, 3))
     mean[:, 0] = w @ x0[:, 0] + np.cumsum(w @ dx)
     mean[:, 1] = w @ x0[:, 1] + np.cumsum(w @ dy)
     mean[:, 2] = combined_heading(theta, w)
@@ -384,8 +394,12 @@ def _sample_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.r
     x0 = particles.poses
     dx, dy, theta = segment_increments(x0, u, dt, noise, eps)
     end = np.empty_like(x0)
-    end[:, 0] = x0[:, 0] + dx.sum(axis=1)
-    end[:, 1] = x0[:, 1] + dy.sum(axis=1)
+    if dx.shape[1] == 1:  # one step (the 1 Hz stream): the same numbers without the sums
+        end[:, 0] = x0[:, 0] + dx[:, 0]
+        end[:, 1] = x0[:, 1] + dy[:, 0]
+    else:
+        end[:, 0] = x0[:, 0] + dx.sum(axis=1)
+        end[:, 1] = x0[:, 1] + dy.sum(axis=1)
     end[:, 2] = wrap_angle(theta[:, -1])
     particles.poses = end
     return x0, (dx, dy, theta)
@@ -428,40 +442,65 @@ def update_with_measurement(
         False when no particle explains the measurement (it was rejected, unless ``escape``).
     """
     z = np.asarray(z, dtype=float)
-    seen = particles.seen[:, k].copy()  # a copy: initialising below must not change it
+    new = ~particles.seen[:, k]  # a new array: initialising below must not change it
     explained = True
-    if seen.any():
-        idx = slice(None) if seen.all() else seen
-        mu, sigma, loglik, d2 = update_landmark_unchecked(
-            particles.mu[idx, k], particles.sigma[idx, k], particles.poses[idx], z, R
-        )
-        if proposal_loglik is not None:
-            loglik = _with_proposal_loglik(loglik, proposal_loglik[idx])
-        if power != 1.0:
-            loglik = power * loglik
-        used = True
-        if gate_chi2 is not None:
-            mu, sigma, loglik, used, explained = gate_measurements(
-                particles, idx, k, z, R, mu, sigma, loglik, d2, gate_chi2, update_map, escape
-            )
-        particles.logw[idx] += loglik
-        if update_map:
-            particles.mu[idx, k], particles.sigma[idx, k] = mu, sigma
-        particles.count[idx, k] += used
-    if not seen.all():
-        new = ~seen
+    if not new.all():
+        idx = slice(None) if not new.any() else ~new
+        explained = _update_seen(particles, idx, k, z, R, update_map=update_map, gate_chi2=gate_chi2,
+                                 escape=escape, power=power,
+                                 proposal_loglik=None if proposal_loglik is None else proposal_loglik[idx])
+    if new.any():
         particles.mu[new, k], particles.sigma[new, k] = initialise_landmark(particles.poses[new], z, R)
         particles.seen[new, k] = True
         particles.count[new, k] = 1
     return bool(explained)
 
 
-def gate_measurements(particles, idx, k, z, R, mu, sigma, loglik, d2, gate_chi2, update_map, escape=False):
-    """The outlier gate, applied to EKF updates already computed for one or several landmarks ``k``.
+def _update_seen(particles: ParticleSet, idx, k, z, R, *, update_map, gate_chi2, escape, power, proposal_loglik):
+    """The EKF update of landmark(s) ``k`` in the particles ``idx`` that have seen them, behind the gate.
+
+    One landmark: ``k`` an int, ``idx`` a slice or a mask over particles, arrays (M',).
+    Several: ``k`` (n,), ``idx`` all particles, arrays (M, n) (:func:`update_with_measurements`).
+    Adds the (gated, tempered) log-likelihoods to the log weights, writes the
+    corrected landmarks, counts the sightings used; returns ``explained``
+    (:func:`gate_measurements`).
+    """
+    mu, sigma, poses = particles.mu[idx, k], particles.sigma[idx, k], particles.poses[idx]
+    several = np.ndim(k) == 1
+    if several:
+        poses = poses[:, None, :]
+    terms, d2, loglik = innovation_unchecked(mu, sigma, poses, z, R)
+    if proposal_loglik is not None:
+        loglik = _with_proposal_loglik(loglik, proposal_loglik)
+    if np.ndim(power) or power != 1.0:
+        loglik = loglik * power
+    apply, young, explained = None, None, True
+    if gate_chi2 is not None:
+        loglik, apply, young, explained = gate_measurements(
+            d2, gate_chi2, loglik, count=particles.count[idx, k], update_map=update_map, escape=escape
+        )
+    particles.logw[idx] += loglik.sum(axis=1) if several else loglik
+    if update_map:
+        mu, sigma = kalman_correction_unchecked(mu, terms, apply)
+        if young is not None:  # re-initialised from the new sighting (rare)
+            shape = young.shape
+            mu[young], sigma[young] = initialise_landmark(
+                np.broadcast_to(poses, shape + (3,))[young],
+                np.broadcast_to(z, shape + (2,))[young],
+                np.broadcast_to(R, shape + (2, 2))[young],
+            )
+        particles.mu[idx, k], particles.sigma[idx, k] = mu, sigma
+    particles.count[idx, k] += True if apply is None else apply
+    return explained
+
+
+def gate_measurements(d2, gate_chi2, loglik, *, count, update_map=True, escape=False):
+    """The outlier gate, given the squared Mahalanobis distances of an EKF update.
 
     ``d2`` is :math:`d^2 = \\nu^\\top Q^{-1} \\nu` per particle (M',) or per particle and
-    measurement (M, n). Where :math:`d^2 >` ``gate_chi2`` the measurement is an
-    outlier *for that particle*:
+    measurement (M, n); ``loglik`` their log-likelihoods, ``count`` the sightings each
+    particle has used of the landmark. Where :math:`d^2 >` ``gate_chi2`` the
+    measurement is an outlier *for that particle*:
 
     * if it is an outlier for **every** particle, no hypothesis explains it — a
       misread barcode, a range off by metres: it is **rejected**, weights and
@@ -473,35 +512,32 @@ def gate_measurements(particles, idx, k, z, R, mu, sigma, loglik, d2, gate_chi2,
     * a landmark seen only once whose second sighting is an outlier is
       re-initialised from the new sighting instead, at no cost in weight: one
       of the two sightings is wrong, and a landmark initialised from an outlier
-      would otherwise reject every good sighting after it.
+      would otherwise reject every good sighting after it (with ``update_map``).
 
     ``escape`` (bool, or (n,)) switches the gate off for a measurement: it is
     applied to every particle as if there were no gate.
 
-    Returns ``(mu, sigma, loglik, used, explained)``: ``used`` marks the
-    particle–measurement pairs that updated a landmark, ``explained`` (scalar
-    or (n,)) is False where no particle explains the measurement (rejected
-    unless escaped).
+    Returns ``(loglik, apply, young, explained)``: the log-likelihoods to add to the
+    weights; ``apply`` (bool, like ``d2``, or None for all) the particle–measurement
+    pairs whose landmark is corrected (and whose sighting is counted); ``young`` (or
+    None) those re-initialised; ``explained`` (scalar or (n,)) False where no particle
+    explains the measurement (rejected unless escaped).
     """
     outlier = d2 > gate_chi2
     if not outlier.any():
-        return mu, sigma, loglik, True, True
+        return loglik, None, None, True
     explained = ~outlier.all(axis=0)
-    outlier = outlier & ~np.asarray(escape)
-    rejected = ~explained & ~np.asarray(escape)
-    young = outlier & (particles.count[idx, k] == 1) & update_map
-    loglik = np.where(young | rejected, 0.0, loglik)
-    keep = outlier & ~young  # the landmark stays as it was
-    mu = np.where(keep[..., None], particles.mu[idx, k], mu)
-    sigma = np.where(keep[..., None, None], particles.sigma[idx, k], sigma)
-    if young.any():
-        poses = particles.poses[idx]
-        if np.ndim(d2) == 2:  # (M, n): several landmarks
-            poses = poses[:, None, :]
-        mu_i, sigma_i = initialise_landmark(poses, z, R)
-        mu = np.where(young[..., None], mu_i, mu)
-        sigma = np.where(young[..., None, None], sigma_i, sigma)
-    return mu, sigma, loglik, ~outlier, explained
+    escape = np.asarray(escape)
+    if escape.any():
+        outlier = outlier & ~escape
+    rejected = ~explained & ~escape
+    young = outlier & (count == 1) if update_map else None
+    if young is not None and not young.any():
+        young = None
+    drop = rejected if young is None else young | rejected
+    if drop.any():
+        loglik = np.where(drop, 0.0, loglik)
+    return loglik, ~outlier, young, explained
 
 
 def update_with_measurements(
@@ -530,21 +566,24 @@ def update_with_measurements(
     """
     z = np.asarray(z, dtype=float).reshape(-1, 2)
     k = np.asarray(k, dtype=int).reshape(-1)
+    n = len(k)
     R = np.asarray(R, dtype=float)
     if R.ndim == 2:
-        R = np.broadcast_to(R, (len(k), 2, 2))  # one R per measurement
-    escape = np.zeros(len(k), dtype=bool) if escape is None else np.broadcast_to(np.asarray(escape, dtype=bool), k.shape)
-    power = np.ones(len(k)) if power is None else np.broadcast_to(np.asarray(power, dtype=float), k.shape)
-    column = (lambda j: None) if proposal_loglik is None else (lambda j: proposal_loglik[:, j])  # noqa: E731
-    if len(k) == 1:  # the common case: one landmark, read and written through views (no copies)
+        R = np.broadcast_to(R, (n, 2, 2))  # one R per measurement
+    escape = np.zeros(n, dtype=bool) if escape is None else np.asarray(escape, dtype=bool).reshape(-1)
+    power = np.ones(n) if power is None else np.asarray(power, dtype=float).reshape(-1)
+    if n == 1:  # the common case: one landmark, read and written through views (no copies)
         return np.array([update_with_measurement(
             particles, z[0], int(k[0]), R[0], update_map=update_map, gate_chi2=gate_chi2, escape=bool(escape[0]),
-            power=float(power[0]), proposal_loglik=column(0),
+            power=float(power[0]), proposal_loglik=None if proposal_loglik is None else proposal_loglik[:, 0],
         )])
-    explained = np.ones(len(k), dtype=bool)
-    if len(set(k.tolist())) < len(k):  # the same landmark twice: distinct ones first, then the rest
+    if len(escape) != n or len(power) != n:
+        escape, power = np.broadcast_to(escape, k.shape), np.broadcast_to(power, k.shape)
+    column = (lambda j: None) if proposal_loglik is None else (lambda j: proposal_loglik[:, j])  # noqa: E731
+    explained = np.ones(n, dtype=bool)
+    if len(set(k.tolist())) < n:  # the same landmark twice: distinct ones first, then the rest
         first = np.unique(k, return_index=True)[1]
-        rest = np.setdiff1d(np.arange(len(k)), first)
+        rest = np.setdiff1d(np.arange(n), first)
         for part in (first, rest):
             explained[part] = update_with_measurements(
                 particles, z[part], k[part], R[part], update_map=update_map, gate_chi2=gate_chi2, escape=escape[part],
@@ -552,25 +591,13 @@ def update_with_measurements(
             )
         return explained
     seen = particles.seen[:, k]  # (M, n), a copy
-    batch = np.ones(len(k), dtype=bool) if seen.all() else seen.all(axis=0)  # seen by every particle: the common case
+    batch = np.ones(n, dtype=bool) if seen.all() else seen.all(axis=0)  # seen by every particle: the common case
     if batch.any():
-        kb, zb, Rb, eb, pb = ((k, z, R, escape, power) if batch.all()
+        everything = batch.all()
+        kb, zb, Rb, eb, pb = ((k, z, R, escape, power) if everything
                               else (k[batch], z[batch], R[batch], escape[batch], power[batch]))
-        mu, sigma, loglik, d2 = update_landmark_unchecked(
-            particles.mu[:, kb], particles.sigma[:, kb], particles.poses[:, None, :], zb, Rb
-        )  # (M, nb, ...)
-        if proposal_loglik is not None:
-            loglik = _with_proposal_loglik(loglik, column(batch))
-        loglik = loglik * pb
-        used = True
-        if gate_chi2 is not None:
-            mu, sigma, loglik, used, explained[batch] = gate_measurements(
-                particles, slice(None), kb, zb, Rb, mu, sigma, loglik, d2, gate_chi2, update_map, eb
-            )
-        particles.logw += loglik.sum(axis=1)
-        if update_map:
-            particles.mu[:, kb], particles.sigma[:, kb] = mu, sigma
-        particles.count[:, kb] += used
+        explained[batch] = _update_seen(particles, slice(None), kb, zb, Rb, update_map=update_map,
+                                        gate_chi2=gate_chi2, escape=eb, power=pb, proposal_loglik=column(batch))
     if not batch.all():
         for j in np.flatnonzero(~batch):  # first sightings (or particles that differ)
             explained[j] = update_with_measurement(
@@ -662,8 +689,11 @@ def combined_pose(poses, w) -> np.ndarray:
     """
     poses = np.asarray(poses, dtype=float)
     out = np.empty(poses.shape[1:])
-    out[..., 0] = w @ poses[..., 0]
-    out[..., 1] = w @ poses[..., 1]
+    if poses.ndim == 2:  # one pose per particle (M, 3): x and y in one product
+        out[:2] = w @ poses[:, :2]
+    else:
+        out[..., 0] = w @ poses[..., 0]
+        out[..., 1] = w @ poses[..., 1]
     out[..., 2] = combined_heading(poses[..., 2], w)
     return out
 
@@ -680,6 +710,9 @@ def combined_heading(theta, w) -> np.ndarray:
     heading at every odometry step.
     """
     theta = np.asarray(theta, dtype=float)
+    if theta.ndim == 1:  # one heading per particle: one number
+        mean = float(np.arctan2(w @ np.sin(theta), w @ np.cos(theta)))
+        return np.pi if mean == -np.pi else mean  # wrap_angle of an atan2: only -π moves (to π)
     if theta.size <= 256:  # a few headings: the direct formula is fewer operations
         return wrap_angle(np.arctan2(w @ np.sin(theta), w @ np.cos(theta)))
     ref = theta[0]
@@ -843,29 +876,32 @@ def run_fastslam(
     dt_all = np.asarray(stream.dt, dtype=float)
     if not (np.isfinite(u_all).all() and np.isfinite(dt_all).all()) or (dt_all < 0).any():
         raise ValueError("the event stream has non-finite commands or negative time steps")
+    R_all = params.measurement_covariance(stream.z)  # R of every measurement, once
     w = particles.weights
     for s, e in _segments(stream, () if kidnap is None else (kidnap[0],)):
+        z, lm = stream.measurements_at(e)
+        last = e if len(z) else e + 1  # a measurement step's estimate is taken after the update
         if params.mode == "map":  # every particle at the groundtruth poses
-            mean = best = np.asarray(groundtruth_poses(stream.t[s : e + 1]), dtype=float)
-            particles.poses = np.tile(mean[-1], (M, 1))
+            truth = np.asarray(groundtruth_poses(stream.t[s : e + 1]), dtype=float)
+            mean = best = truth[: last - s]
+            particles.poses = np.tile(truth[-1], (M, 1))
         else:
             x_start = particles.poses.copy() if improved else None
-            mean, best = propagate_segment(particles, u_all[s : e + 1], dt_all[s : e + 1], params.motion_noise, rng, w)
+            mean, best = propagate_segment(particles, u_all[s : e + 1], dt_all[s : e + 1], params.motion_noise, rng, w,
+                                           n_record=last - s)
         kidnapped = kidnap_step is not None and s <= kidnap_step <= e  # segments end at the kidnap step
         if kidnapped:
             particles.poses[:] = np.asarray(kidnap[1], dtype=float)
             mean, best = np.array(mean), np.array(best)
             mean[kidnap_step - s :] = best[kidnap_step - s :] = particles.poses[0]
-        z, lm = stream.measurements_at(e)
-        last = e if len(z) else e + 1  # a measurement step's estimate is taken after the update
         if last > s:
-            pose_mean[s:last] = mean[: last - s]
-            pose_best[s:last] = best[: last - s]
+            pose_mean[s:last] = mean
+            pose_best[s:last] = best
         if len(z):
             t_e = stream.t[e]
             escape = escapes.escaped(t_e, lm)
             power = evidence_fractions(t_e, lm, last_seen, params.measurement_correlation_s)
-            R = params.measurement_covariance(z)
+            R = R_all[stream.offsets[e] : stream.offsets[e + 1]]
             proposal_loglik = None
             if improved and not kidnapped:  # FastSLAM 2.0: move the poses given the sightings first
                 x_bar, P = motion_prediction(x_start, *segment_motion(u_all[s : e + 1], dt_all[s : e + 1],

@@ -393,7 +393,7 @@ def segment_increments(x, u, dt, noise: MotionNoise, eps):
     theta : ndarray, shape (M, L)
         Heading after each step [rad], not wrapped (continuous from ``x[:, 2]``).
     """
-    x, u, dt = (np.asarray(a, dtype=float) for a in (x, u, dt))
+    x, u, dt = np.asarray(x, dtype=float), np.asarray(u, dtype=float), np.asarray(dt, dtype=float)
     sq = np.sqrt(dt)
     ds = u[:, 0] * dt
     dth = u[:, 1] * dt
@@ -402,7 +402,8 @@ def segment_increments(x, u, dt, noise: MotionNoise, eps):
         dth = dth + noise.sigma_omega * sq * eps[..., 1]
     else:
         dth = dth + noise.sigma_theta * sq * eps[..., 2]
-    theta_end = x[:, 2:3] + np.cumsum(dth, axis=1)  # heading after each step, (M, L)
+    # heading after each step, (M, L); a running sum of one step is that step
+    theta_end = x[:, 2:3] + (np.cumsum(dth, axis=1) if dth.shape[-1] > 1 else dth)
     # cos and sin of the heading at the start of each step, in single precision:
     # numpy vectorises them (~10× faster than double here); a 1e-7 rad rounding
     # of θ moves a ~5 mm step by 5e-10 m.

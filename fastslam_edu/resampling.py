@@ -102,6 +102,12 @@ def validate_weights(w) -> np.ndarray:
         w = np.asarray(w, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"weights must be an array of real numbers, got {w!r}") from exc
+    if w.ndim == 1 and w.size:
+        # the common case in two reductions: a NaN or a negative weight fails the minimum, then an inf the sum
+        if np.minimum.reduce(w) >= 0.0:
+            total = float(np.add.reduce(w))
+            if abs(total - 1.0) <= WEIGHT_SUM_TOLERANCE:
+                return w / total
     if w.ndim != 1 or w.size == 0:
         raise ValueError(f"weights must be a non-empty 1-D array (one weight per particle), got shape {w.shape}")
     n_nan = int(np.count_nonzero(np.isnan(w)))
@@ -175,7 +181,8 @@ def inverse_cdf(u, w) -> np.ndarray:
 def _inverse_cdf(u, w: np.ndarray) -> np.ndarray:
     """:func:`inverse_cdf` for weights already validated (the resamplers check them once)."""
     c = cumulative_weights(w)
-    u = np.clip(np.asarray(u, dtype=float), 0.0, _BELOW_ONE)
+    u = np.asarray(u, dtype=float)
+    u = np.minimum(np.maximum(u, 0.0), _BELOW_ONE)  # = np.clip(u, 0, _BELOW_ONE), with less overhead
     return np.searchsorted(c, u, side="right")
 
 

@@ -14,8 +14,11 @@ from scipy.stats import multivariate_normal
 from fastslam_edu.ekf import (
     gaussian_log_likelihood,
     initialise_landmark,
+    innovation_unchecked,
+    kalman_correction_unchecked,
     update_landmark,
     update_landmark_one,
+    update_landmark_unchecked,
 )
 
 # -- random EKF cases ------------------------------------------------------------------------
@@ -165,6 +168,42 @@ def test_batched_over_particles_and_measurements():
             np.testing.assert_allclose(out[0][i, k], m1, rtol=0, atol=1e-12)
             np.testing.assert_allclose(out[1][i, k], S1, rtol=0, atol=1e-12)
             assert abs(out[2][i, k] - l1) < 1e-12 * max(1.0, abs(l1))
+
+
+def test_the_two_halves_are_the_update_and_a_zero_gain_changes_nothing(cases):
+    """innovation_unchecked + kalman_correction_unchecked = the update; apply=False leaves μ, Σ exactly."""
+    (mu, Sigma, x, z, R), _ = cases
+    Sigma = 0.5 * (Sigma + Sigma.transpose(0, 2, 1))  # the filter stores exactly symmetric Σ
+    terms, d2, loglik = innovation_unchecked(mu, Sigma, x, z, R)
+    mu_ref, Sigma_ref, loglik_ref = update_landmark(mu, Sigma, x, z, R)
+    np.testing.assert_array_equal(loglik, loglik_ref)
+    H = np.stack([H_by_hand(m[:, None], pose) for m, pose in zip(mu, x)])
+    Q = H @ Sigma @ H.transpose(0, 2, 1) + R  # written out independently
+    Q_inv = np.stack([np.column_stack(terms[6:8]), np.column_stack(terms[7:9])], axis=1)
+    np.testing.assert_allclose(Q_inv @ Q, np.broadcast_to(np.eye(2), Q.shape), atol=1e-9)
+    nu = np.column_stack(terms[:2])
+    np.testing.assert_allclose(d2, np.einsum("ni,nij,nj->n", nu, np.linalg.inv(Q), nu), rtol=1e-9)
+    apply = np.arange(len(mu)) % 3 != 0  # every third case an outlier left alone
+    mu_new, Sigma_new = kalman_correction_unchecked(mu, terms, apply)
+    np.testing.assert_array_equal(mu_new[apply], mu_ref[apply])
+    np.testing.assert_array_equal(Sigma_new[apply], Sigma_ref[apply])
+    np.testing.assert_array_equal(mu_new[~apply], mu[~apply])  # bitwise: K = 0 exactly
+    np.testing.assert_array_equal(Sigma_new[~apply], Sigma[~apply])
+    assert not np.array_equal(mu_ref[~apply], mu[~apply])  # the update would have moved them
+    mu_u, Sigma_u, loglik_u, d2_u = update_landmark_unchecked(mu, Sigma, x, z, R)
+    np.testing.assert_array_equal(mu_u, mu_ref)
+    np.testing.assert_array_equal(Sigma_u, Sigma_ref)
+    np.testing.assert_array_equal(d2_u, d2)
+
+
+def test_checked_update_symmetrises_a_slightly_asymmetric_sigma():
+    """update_landmark accepts Σ asymmetric at rounding level and updates its symmetric part."""
+    mu, Sigma, x, z, R = random_cases(np.random.default_rng(3), 1)
+    skew = Sigma.copy()
+    skew[0, 0, 1] += 1e-12
+    sym = 0.5 * (skew + skew.transpose(0, 2, 1))
+    for a, b in zip(update_landmark(mu, skew, x, z, R), update_landmark(mu, sym, x, z, R)):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_information_form(cases):

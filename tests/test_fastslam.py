@@ -581,6 +581,20 @@ def test_combined_pose_closed_form():
     np.testing.assert_allclose(out2[0], out, atol=1e-12)
 
 
+def test_combined_heading_of_one_set_is_the_wrapped_atan2():
+    """One heading per particle returns a float in (−π, π]: atan2's −π is wrapped to π."""
+    rng = np.random.default_rng(4)
+    theta = wrap_angle(rng.uniform(-np.pi, np.pi, 30))
+    w = rng.random(30)
+    w /= w.sum()
+    got = fs.combined_heading(theta, w)
+    assert isinstance(got, float)
+    assert got == wrap_angle(np.arctan2(w @ np.sin(theta), w @ np.cos(theta)))
+    # exactly behind: sin sums to -0.0, cos to -1 -> atan2 gives -π, the mean is π
+    assert np.arctan2(-0.0, -1.0) == -np.pi
+    assert fs.combined_heading(np.array([-np.pi]), np.array([1.0])) == np.pi
+
+
 @pytest.mark.parametrize("spread", [0.05, 1.0, 3.0])
 def test_combined_heading_single_precision_path_equals_the_direct_formula(spread):
     """Many headings (M × L > 256): the float32 relative computation vs atan2 of float64 sums."""
@@ -616,6 +630,17 @@ def test_propagate_segment_records_what_propagate_computes(L):
     assert np.abs(wrap_angle(mean[:, 2] - expected[:, 2])).max() < 1e-7
     np.testing.assert_allclose(best[:, :2], path[np.argmax(w), :, :2], atol=1e-12)
     np.testing.assert_allclose(best[:, 2], wrap_angle(path[np.argmax(w), :, 2]), atol=1e-12)
+    # the estimates of the first n steps only (the filter's measurement steps): same poses, same numbers
+    for n in {0, L - 1, L // 2}:
+        c = ParticleSet(a.poses.copy(), a.mu.copy(), a.sigma.copy(), a.seen.copy(), a.logw.copy())
+        d = ParticleSet(a.poses.copy(), a.mu.copy(), a.sigma.copy(), a.seen.copy(), a.logw.copy())
+        full = fs.propagate_segment(c, u, dt, SIM.odometry_noise, np.random.default_rng(2), w)
+        part = fs.propagate_segment(d, u, dt, SIM.odometry_noise, np.random.default_rng(2), w, n_record=n)
+        np.testing.assert_array_equal(c.poses, d.poses)
+        assert part[0].shape == part[1].shape == (n, 3)
+        np.testing.assert_allclose(part[0][:, :2], full[0][:n, :2], atol=1e-12)
+        assert np.abs(wrap_angle(part[0][:, 2] - full[0][:n, 2])).max(initial=0.0) < 1e-7
+        np.testing.assert_allclose(part[1], full[1][:n], atol=1e-12)
 
 
 def test_combined_map_mixture_closed_form():

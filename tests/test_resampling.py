@@ -303,6 +303,8 @@ def test_tiny_round_off_in_the_sum_is_accepted():
         ([0.5, np.nan, 0.5], "1 NaN"),
         ([0.5, np.inf], "infinite"),
         ([1.5, -0.5], "negative"),
+        ([2.0, -1.0, 0.0], "negative"),  # sums to exactly 1: the minimum catches it
+        ([np.inf, -np.inf, 1.0], "infinite"),
         ([], "non-empty 1-D"),
         ([[0.5, 0.5]], "non-empty 1-D"),
         (["a", "b"], "real numbers"),
