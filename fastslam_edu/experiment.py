@@ -25,15 +25,22 @@ from . import metrics
 from .datasets.audit import apply_landmark_audit
 from .datasets.events import event_stream, groundtruth_at
 from .datasets.log import Dataset, RobotLog
-from .datasets.mrclam import read_dataset, read_groundtruth_csv, read_groundtruth_dat
+from .datasets.mrclam import groundtruth_files, read_dataset, read_groundtruth_csv, read_groundtruth_dat, robots_in
 from .fastslam import FastSLAMParams, FastSLAMResult, run_fastslam
+from .initial_pose import initial_pose_from_landmarks
 
 
 def load_mrclam(path, robot: int, *, groundtruth_file=None, audit: bool = True):
     """Read one robot of a MR.CLAM dataset, with the landmark table audited.
 
+    The audit (:mod:`fastslam_edu.datasets.audit`) needs groundtruth poses: it
+    uses the robot's own, or, for a robot without groundtruth (Dataset 1,
+    robots 3–5), those of the dataset's other robots — the table is the
+    dataset's, not the robot's, and a robot without groundtruth must not get
+    the uncorrected table.
+
     Returns ``(dataset, log, notes)``; ``notes`` lists corrections made to the
-    landmark table (see :mod:`fastslam_edu.datasets.audit`) and other remarks.
+    landmark table and other remarks.
     """
     path = Path(path)
     dataset = read_dataset(path, robots=[robot])
@@ -48,7 +55,16 @@ def load_mrclam(path, robot: int, *, groundtruth_file=None, audit: bool = True):
         dataset = dataclasses.replace(dataset, robots={robot: log})
         notes.append(f"groundtruth from {gt_path}")
     if audit:
-        dataset, fixes = apply_landmark_audit(dataset)
+        checked = dataset
+        if log.groundtruth is None:  # audit with the robots that have groundtruth
+            others = [r for r in robots_in(path) if r != robot and any(f.is_file() for f in groundtruth_files(path, r))]
+            if others:
+                checked = read_dataset(path, robots=others)
+        fixed, fixes = apply_landmark_audit(checked)
+        if fixes and checked is not dataset:
+            fixes = [f"{line} [checked with robots {', '.join(map(str, sorted(checked.robots)))}]" for line in fixes]
+        if fixes:
+            dataset = dataclasses.replace(dataset, landmarks=fixed.landmarks)
         notes += fixes
     return dataset, log, notes
 
@@ -144,18 +160,30 @@ def run_mrclam(
     progress: bool = False,
     audit: bool = True,
     kidnap=None,
+    x0=None,
 ):
     """Load, run and score FastSLAM on one robot of a MR.CLAM dataset.
+
+    ``x0``: the initial pose ``(x, y, θ)``; ``"landmarks"`` to find it from the
+    first sightings of the surveyed landmarks (:mod:`fastslam_edu.initial_pose`,
+    for robots without groundtruth; the summary's notes say where it came from);
+    default the groundtruth at the first step.
 
     Returns ``(result, summary, context)`` where ``context`` holds the dataset,
     the log, the event stream and the notes.
     """
     dataset, log, notes = load_mrclam(path, robot, groundtruth_file=groundtruth_file, audit=audit)
-    stream = event_stream(log, dataset.landmark_subjects, rate=rate)
+    if isinstance(x0, str):
+        if x0 != "landmarks":
+            raise ValueError(f'x0 must be a pose (x, y, theta) or "landmarks", got {x0!r}')
+        start = initial_pose_from_landmarks(log, dataset.landmark_positions, dataset.landmark_subjects)
+        notes.append(start.describe())
+        x0 = start.x0
+    stream = event_stream(log, dataset.landmark_subjects, rate=rate, x0=x0)
     if stream.x0 is None:
         raise ValueError(
             f"robot {robot} in {path} has no groundtruth to take the initial pose from; "
-            "pass --groundtruth FILE"
+            "pass --groundtruth FILE, or --x0 landmarks to find it from the surveyed landmarks"
         )
     gt_fn = None
     if params.mode == "map":
@@ -173,6 +201,7 @@ def run_mrclam(
     )
     summary = summarize(result, dataset, log)
     summary.update(
-        dataset=str(path), robot=robot, rate=rate, seed=seed, params=params_dict(params), notes=notes
+        dataset=str(path), robot=robot, rate=rate, seed=seed, params=params_dict(params), notes=notes,
+        x0=[float(v) for v in stream.x0],
     )
     return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes}

@@ -128,3 +128,24 @@ def test_no_groundtruth_means_no_audit(data, pair):
     out, notes = apply_landmark_audit(blind)
     assert notes == []
     pd.testing.assert_frame_equal(out.landmarks, blind.landmarks)
+
+
+def test_a_robot_without_groundtruth_gets_the_table_checked_by_the_others(tmp_path):
+    """load_mrclam audits the dataset's table with the robots that have groundtruth (Dataset 1, robots 3-5)."""
+    from fastslam_edu.datasets.mrclam import write_dataset
+    from fastslam_edu.experiment import load_mrclam
+
+    two = simulate_dataset(3, duration=40.0, n_robots=2)
+    a, b = sorted(two.robots[1].measurements["subject"].value_counts().index[:2].astype(int).tolist())
+    folder = write_dataset(exchanged(two, a, b), tmp_path / "MRCLAM_Swapped")
+    (folder / "Robot2_Groundtruth.dat").unlink()  # robot 2 has no groundtruth, robot 1 has
+    data2, log2, notes2 = load_mrclam(folder, 2)
+    assert log2.groundtruth is None
+    assert len(notes2) == 1 and f"{a} and {b} exchanged" in notes2[0] and "[checked with robots 1]" in notes2[0]
+    np.testing.assert_allclose(data2.landmarks[["x", "y"]].to_numpy(), two.landmarks[["x", "y"]].to_numpy(), atol=1e-6)
+    assert list(data2.robots) == [2]  # the robot asked for, nothing else
+    data1, _, notes1 = load_mrclam(folder, 1)  # a robot with groundtruth checks with its own
+    assert len(notes1) == 1 and "checked with" not in notes1[0]
+    np.testing.assert_array_equal(data1.landmarks.to_numpy(), data2.landmarks.to_numpy())
+    _, _, kept = load_mrclam(folder, 2, audit=False)
+    assert kept == []
