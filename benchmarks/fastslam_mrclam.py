@@ -9,6 +9,12 @@
 
 The write-up's own code, measured on a machine like this one
 (../shared/reference/README.md): 11.9 s for its 1489-step loop (13.0 s whole run).
+Its code is not part of this project, so it cannot run in the same run as ours; the
+machine, a shared VM, is not always as fast (the same code has run 3x slower on one day
+than on another). So the table gives two ratios: against the recorded 11.9 s as it is,
+and against 11.9 s scaled by how much slower this machine runs our own textbook loop
+reference (c) than when the 11.9 s was recorded (61 s, the mean of 59-64 s measured then;
+both are Python loops over particles and measurements calling small numpy functions).
 
 Usage: python benchmarks/fastslam_mrclam.py [--seeds N] [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data)
@@ -35,6 +41,7 @@ from fastslam_edu.fastslam import FastSLAMParams, run_fastslam, with_params  # n
 from fastslam_edu.fastslam_loop import run_fastslam_loop  # noqa: E402
 
 REFERENCE_LOOP_SECONDS = 11.9  # the write-up's code, 1489-step loop, 100 particles
+LOOP_REFERENCE_SECONDS_THEN = 61.0  # our loop reference on case (c) when the 11.9 s was recorded (59-64 s)
 
 
 def case(stream, dataset, log, params, seeds):
@@ -79,16 +86,26 @@ def main(argv=None) -> int:
     run_fastslam(onehz, base, np.random.default_rng(0))
     vec_s = time.perf_counter() - t
     results["c_loop_vs_vectorised_1hz_M100"] = {"loop_seconds": loop_s, "vectorised_seconds": vec_s, "ratio": loop_s / vec_s}
+    slowdown = loop_s / LOOP_REFERENCE_SECONDS_THEN  # this machine against the one the 11.9 s was recorded on
+    reference_here = REFERENCE_LOOP_SECONDS * slowdown
+    results["machine_slowdown_vs_reference_machine"] = slowdown
+    results["reference_loop_seconds_scaled"] = reference_here
 
     print(f"machine: {results['machine'].get('cpu_model', '?')}, {results['machine']['cpu_count']} cores, numpy {results['machine']['numpy']}")
-    print(f"{'case':<28} {'steps':>7} {'meas':>6} {'time [s]':>9} {'vs ref':>8} {'path RMSE':>10} {'lm err':>7} {'lm aligned':>10}")
+    print(f"{'case':<28} {'steps':>7} {'meas':>6} {'time [s]':>9} {'vs ref':>7} {'scaled':>7} "
+          f"{'path RMSE':>10} {'lm err':>7} {'lm aligned':>10}")
     for name in ("a_writeup_1hz_M100", "b_full_M100", "b_full_M1000", "d_full_M100_fastslam2"):
         r = results[name]
+        r["vs_reference"] = REFERENCE_LOOP_SECONDS / r["seconds_median"]
+        r["vs_reference_scaled"] = reference_here / r["seconds_median"]
         print(f"{name:<28} {r['steps']:>7} {r['measurements']:>6} {r['seconds_median']:>9.3f} "
-              f"{REFERENCE_LOOP_SECONDS / r['seconds_median']:>7.0f}x {r['path_rmse_m_median']:>10.3f} "
+              f"{r['vs_reference']:>6.0f}x {r['vs_reference_scaled']:>6.0f}x {r['path_rmse_m_median']:>10.3f} "
               f"{r['landmark_error_mean_m_median']:>7.3f} {r['landmark_error_aligned_mean_m_median']:>10.3f}")
     c = results["c_loop_vs_vectorised_1hz_M100"]
     print(f"loop reference {c['loop_seconds']:.2f} s vs vectorised {c['vectorised_seconds']:.3f} s: {c['ratio']:.0f}x (same stream, M=100, seed 0)")
+    print(f"vs ref: against the recorded {REFERENCE_LOOP_SECONDS} s; scaled: against {reference_here:.1f} s, the same "
+          f"scaled by this machine's slowdown on the loop reference ({loop_s:.0f} s here, "
+          f"{LOOP_REFERENCE_SECONDS_THEN:.0f} s when the 11.9 s was recorded: x{slowdown:.2f})")
     d = results["d_full_M100_fastslam2"]["seconds_median"] / results["b_full_M100"]["seconds_median"]
     results["d_fastslam2_over_fastslam1_time"] = d
     print(f"FastSLAM 2.0 proposal / FastSLAM 1.0, full rate, M=100: {d:.2f}x the time")

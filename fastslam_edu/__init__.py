@@ -20,6 +20,7 @@ Landmark SLAM (FastSLAM 1.0)
     landmark_tree   Montemerlo's persistent balanced tree of landmark filters
     fastslam_tree   the filter with tree-backed maps (O(M log K) resampling)
     metrics         landmark and trajectory errors, SE(2) alignment
+    initial_pose    the start pose from the first sightings of surveyed landmarks (robots without groundtruth)
     experiment      one MR.CLAM run end to end (load, audit, run, score)
     plotting        figures of a run
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -23,6 +24,18 @@ def _positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
     return value
+
+
+def _initial_pose(text: str):
+    if text == "landmarks":
+        return text
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(map(math.isfinite, values)):
+        raise argparse.ArgumentTypeError(f"expected X,Y,THETA (three numbers) or 'landmarks', got {text!r}")
+    return tuple(values)
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -42,6 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=int, default=0, help="random seed (same seed, same numbers)")
     run.add_argument("--rate", choices=("full", "1hz"), default="full", help="full-rate events or the write-up's 1 Hz cleaning")
     run.add_argument("--groundtruth", type=Path, help="groundtruth file (.dat or 1 Hz .csv) to score against")
+    run.add_argument("--x0", type=_initial_pose, metavar="X,Y,THETA|landmarks",
+                     help="initial pose [m, m, rad] (write --x0=X,Y,THETA when X is negative), or 'landmarks' to "
+                          "find it from the first sightings of the surveyed landmarks (robots without groundtruth); "
+                          "default: groundtruth at the first step")
     run.add_argument("--mode", choices=MODES, default="slam")
     run.add_argument("--proposal", choices=PROPOSALS, default="motion",
                      help="motion: FastSLAM 1.0 (default); fastslam2: FastSLAM 2.0's proposal")
@@ -126,7 +143,7 @@ def cmd_run(args) -> int:
                          proposal=args.proposal)
     result, summary, ctx = run_mrclam(
         args.data, args.robot, params, args.seed, rate=args.rate, groundtruth_file=args.groundtruth,
-        progress=not args.quiet, audit=not args.no_audit,
+        progress=not args.quiet, audit=not args.no_audit, x0=args.x0,
     )
     for note in summary["notes"]:
         print(f"note: {note}", file=sys.stderr)

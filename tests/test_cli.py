@@ -100,6 +100,36 @@ def test_proposal_option(dataset_dir, tmp_path, capsys):
     assert "invalid choice: 'fastslam3'" in capsys.readouterr().err
 
 
+def test_initial_pose_from_the_landmarks_for_a_robot_without_groundtruth(dataset_dir, tmp_path, capsys):
+    """--x0 landmarks: the start from the first sightings of the surveyed landmarks; --x0 X,Y,THETA as given."""
+    blind = tmp_path / "blind"
+    shutil.copytree(dataset_dir, blind)
+    start = data_rows(blind / "Robot1_Groundtruth.dat")[0]
+    (blind / "Robot1_Groundtruth.dat").unlink()
+    assert main(["run", "--data", str(blind), "--robot", "1", "--quiet"]) == 1
+    assert "--x0 landmarks" in one_error_line(capsys)
+    assert run_cli(blind, tmp_path, "--x0", "landmarks") == 0
+    assert "initial pose from" in capsys.readouterr().err
+    summary = json.loads((tmp_path / "out.json").read_text())
+    assert summary["path_rmse_m"] is None  # nothing to score the path against
+    assert any(n.startswith("initial pose from") for n in summary["notes"])
+    x0 = np.array(summary["x0"])
+    assert np.hypot(*(x0[:2] - start[1:3])) < 0.15 and abs(x0[2] - start[3]) < 0.1  # the simulation's start (to 3 deg)
+    assert summary["landmark_error_aligned_mean_m"] < 0.2 and summary["landmark_error_mean_m"] < 1.5
+    # an explicit pose is used as given: the true start gives the groundtruth run's map
+    given = ",".join(f"{v:.12g}" for v in start[1:4])
+    assert run_cli(blind, tmp_path, f"--x0={given}") == 0  # with '=': a pose may start with a minus sign
+    explicit = json.loads((tmp_path / "out.json").read_text())
+    np.testing.assert_allclose(explicit["x0"], start[1:4], atol=1e-9)
+    assert run_cli(dataset_dir, tmp_path) == 0
+    truth_start = json.loads((tmp_path / "out.json").read_text())
+    assert explicit["landmark_error_mean_m"] == pytest.approx(truth_start["landmark_error_mean_m"], abs=1e-3)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
+        run_cli(blind, tmp_path, "--x0", "1,2")
+    assert exit_info.value.code == 2 and "X,Y,THETA" in one_error_line(capsys)
+
+
 def one_error_line(capsys) -> str:
     err = capsys.readouterr().err
     assert "Traceback" not in err
