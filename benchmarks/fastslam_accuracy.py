@@ -15,7 +15,7 @@ processes (default 2), so the filter times it records are not comparable
 with ``fastslam_mrclam.py``'s.
 
 Usage: python benchmarks/fastslam_accuracy.py [--seeds 10] [--particles 100] [--proposal motion|fastslam2]
-       [--jobs 2] [--out FILE]
+       [--odometry-scale KV KW] [--jobs 2] [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data; about 30 s on 2 cores for 10 seeds)
 """
 
@@ -69,13 +69,15 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--particles", type=int, default=100)
     ap.add_argument("--proposal", choices=PROPOSALS, default="motion")
+    ap.add_argument("--odometry-scale", type=float, nargs=2, metavar=("KV", "KW"), default=(1.0, 1.0),
+                    help="FastSLAMParams.odometry_scale: the commands are multiplied by (k_v, k_omega)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", type=Path, help="default: results/fastslam_accuracy[_fastslam2].json")
     args = ap.parse_args(argv)
     if args.out is None:
         suffix = "" if args.proposal == "motion" else f"_{args.proposal}"
         args.out = Path(__file__).parent / "results" / f"fastslam_accuracy{suffix}.json"
-    params = FastSLAMParams(n_particles=args.particles, proposal=args.proposal)
+    params = FastSLAMParams(n_particles=args.particles, proposal=args.proposal, odometry_scale=tuple(args.odometry_scale))
     robots = ROBOTS + EXTRA + NO_GROUNDTRUTH
     jobs = [(d, r, s, params) for d, r in robots for s in range(args.seeds)]
     with ProcessPoolExecutor(args.jobs) as pool:
@@ -97,7 +99,8 @@ def main(argv=None) -> int:
         table.append(row)
 
     name = "FastSLAM 1.0" if args.proposal == "motion" else "FastSLAM 2.0 proposal"
-    print(f"{name}, full rate, M = {args.particles}, seeds 0-{args.seeds - 1}: median (worst) [m]")
+    scale = "" if tuple(args.odometry_scale) == (1.0, 1.0) else f", odometry scale {tuple(args.odometry_scale)}"
+    print(f"{name}, full rate, M = {args.particles}{scale}, seeds 0-{args.seeds - 1}: median (worst) [m]")
     print(f"{'robot':<6} {'path RMSE ≤ 0.5':>18} {'landmarks ≤ 0.5':>18} {'aligned ≤ 0.25':>18} {'rejected':>9}")
     for row in table:
         cells = []
