@@ -19,6 +19,7 @@ Landmark SLAM (FastSLAM 1.0)
     proposal        FastSLAM 2.0's proposal: the pose sampled given the sighting (an engine option)
     landmark_tree   Montemerlo's persistent balanced tree of landmark filters
     fastslam_tree   the filter with tree-backed maps (O(M log K) resampling)
+    smoother        least squares over the whole log: the most probable path and map under the same model
     metrics         landmark and trajectory errors, SE(2) alignment
     initial_pose    the start pose from the first sightings of surveyed landmarks (robots without groundtruth)
     experiment      one MR.CLAM run end to end (load, audit, run, score)

@@ -62,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--mode", choices=MODES, default="slam")
     run.add_argument("--proposal", choices=PROPOSALS, default="motion",
                      help="motion: FastSLAM 1.0 (default); fastslam2: FastSLAM 2.0's proposal")
+    run.add_argument("--smooth", action="store_true",
+                     help="also solve the whole log by least squares from the filter's result (fastslam_edu.smoother): "
+                          "the best estimate under the same model; its figures go under 'smoother'")
     run.add_argument("--resampler", choices=("systematic", "stratified", "residual", "multinomial"), default="systematic")
     run.add_argument("--no-audit", action="store_true", help="do not correct swapped landmark table entries")
     run.add_argument("--json", type=Path, help="write the figures, parameters and seed to this JSON file")
@@ -139,6 +142,8 @@ def cmd_run(args) -> int:
 
     if not args.data.is_dir():
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
+    if args.smooth and args.mode != "slam":
+        raise ValueError(f"--smooth solves full SLAM; it does not apply to --mode {args.mode}")
     params = with_params(FastSLAMParams(), n_particles=args.particles, mode=args.mode, resampler=args.resampler,
                          proposal=args.proposal)
     result, summary, ctx = run_mrclam(
@@ -149,9 +154,15 @@ def cmd_run(args) -> int:
         print(f"note: {note}", file=sys.stderr)
     keys = ("path_rmse_m", "path_rmse_aligned_m", "path_max_m", "landmark_error_mean_m",
             "landmark_error_aligned_mean_m", "steps", "measurements_used", "measurements_rejected", "filter_seconds")
-    width = max(map(len, keys))
-    for k in keys:
-        v = summary.get(k)
+    rows = [(k, summary.get(k)) for k in keys]
+    if args.smooth:
+        from .experiment import summarize_smoother
+        from .smoother import smooth
+
+        summary["smoother"] = summarize_smoother(smooth(ctx["stream"], params, initial=result), ctx["dataset"], ctx["log"])
+        rows += [(f"smoother.{k}", summary["smoother"].get(k)) for k in keys[:5] + ("smoother_seconds",)]
+    width = max(len(k) for k, _ in rows)
+    for k, v in rows:
         print(f"{k:<{width}}  {'n/a' if v is None else (f'{v:.4f}' if isinstance(v, float) else v)}")
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))

@@ -28,6 +28,7 @@ from .datasets.log import Dataset, RobotLog
 from .datasets.mrclam import groundtruth_files, read_dataset, read_groundtruth_csv, read_groundtruth_dat, robots_in
 from .fastslam import FastSLAMParams, FastSLAMResult, run_fastslam
 from .initial_pose import initial_pose_from_landmarks
+from .smoother import SmootherResult
 
 
 def load_mrclam(path, robot: int, *, groundtruth_file=None, audit: bool = True):
@@ -77,28 +78,55 @@ def summarize(result: FastSLAMResult, dataset: Dataset, log: RobotLog) -> dict:
         "measurements_rejected": result.measurements_rejected,
         "resamples": result.n_resamples,
         "filter_seconds": round(result.filter_seconds, 4),
-        "landmarks_observed": int(result.observed.sum()),
     }
+    out.update(score_estimate(result.t, result.pose_mean, result.landmarks_mean, result.observed,
+                              result.landmark_subjects, dataset, log))
+    return out
+
+
+def summarize_smoother(result: SmootherResult, dataset: Dataset, log: RobotLog) -> dict:
+    """The figures of a :func:`fastslam_edu.smoother.smooth` solution, scored as a filter run is."""
+    out: dict = {
+        "keyframes": int(len(result.t)),
+        "measurements_used": result.measurements_used,
+        "measurements_rejected": result.measurements_rejected,
+        "iterations": result.iterations,
+        "smoother_seconds": round(result.seconds, 4),
+    }
+    out.update(score_estimate(result.t, result.poses, result.landmarks, result.observed,
+                              result.landmark_subjects, dataset, log))
+    sd = np.sqrt(np.trace(result.landmarks_cov[result.observed], axis1=1, axis2=2))
+    out["landmark_std_mean_m"] = float(sd.mean()) if sd.size else None
+    return out
+
+
+def score_estimate(t, poses, landmarks, observed, landmark_subjects, dataset: Dataset, log: RobotLog) -> dict:
+    """Path and map errors of an estimate against groundtruth (the figures of the module docstring).
+
+    ``t`` (N,), ``poses`` (N, 3): the estimated path; ``landmarks`` (K, 2) with ``observed`` (K,)
+    the map, in the order of ``landmark_subjects``. Poses outside the groundtruth's span are not scored.
+    """
+    out: dict = {"landmarks_observed": int(np.sum(observed))}
     truth = dataset.landmark_positions
-    err = metrics.landmark_errors(result.landmarks_mean, truth, result.observed)
-    out["landmark_error_mean_m"] = float(np.nanmean(err)) if result.observed.any() else None
+    err = metrics.landmark_errors(landmarks, truth, observed)
+    out["landmark_error_mean_m"] = float(np.nanmean(err)) if np.any(observed) else None
     out["landmark_error_aligned_mean_m"] = (
-        float(np.nanmean(metrics.landmark_errors_aligned(result.landmarks_mean, truth, result.observed)))
-        if result.observed.sum() >= 2
+        float(np.nanmean(metrics.landmark_errors_aligned(landmarks, truth, observed)))
+        if np.sum(observed) >= 2
         else None
     )
     out["landmark_errors_m"] = {
-        int(s): (None if np.isnan(e) else round(float(e), 4)) for s, e in zip(result.landmark_subjects, err)
+        int(s): (None if np.isnan(e) else round(float(e), 4)) for s, e in zip(landmark_subjects, err)
     }
     gt = log.groundtruth
     if gt is None:
         out.update(path_rmse_m=None, path_rmse_aligned_m=None, path_mean_m=None, path_max_m=None)
         return out
     t_gt = gt["time"].to_numpy()
-    scored = (result.t >= t_gt[0]) & (result.t <= t_gt[-1])
+    scored = (t >= t_gt[0]) & (t <= t_gt[-1])
     poses_gt = gt[["x", "y", "theta"]].to_numpy()
-    e = metrics.trajectory_errors(result.t[scored], result.pose_mean[scored], t_gt, poses_gt)
-    ea = metrics.trajectory_errors(result.t[scored], result.pose_mean[scored], t_gt, poses_gt, align=True)
+    e = metrics.trajectory_errors(t[scored], poses[scored], t_gt, poses_gt)
+    ea = metrics.trajectory_errors(t[scored], poses[scored], t_gt, poses_gt, align=True)
     out.update(
         path_rmse_m=float(e["rmse"]),
         path_mean_m=float(e["mean"]),

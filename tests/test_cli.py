@@ -100,6 +100,24 @@ def test_proposal_option(dataset_dir, tmp_path, capsys):
     assert "invalid choice: 'fastslam3'" in capsys.readouterr().err
 
 
+def test_smooth_option(dataset_dir, tmp_path, capsys):
+    """--smooth adds the least-squares solution's figures (under "smoother"); on a simulated log its map's shape is
+    at least as good as that of the filter's run it started from (within 1 cm); not with --mode localize."""
+    assert run_cli(dataset_dir, tmp_path, "--smooth") == 0
+    out = capsys.readouterr().out
+    assert "smoother.path_rmse_m" in out
+    summary = json.loads((tmp_path / "out.json").read_text())
+    sm = summary["smoother"]
+    for k in KEYS[:5]:
+        assert isinstance(sm[k], float) and math.isfinite(sm[k]), k
+    assert sm["landmark_error_aligned_mean_m"] <= summary["landmark_error_aligned_mean_m"] + 0.01
+    assert sm["measurements_used"] + sm["measurements_rejected"] <= summary["measurements_used"] + summary[
+        "measurements_rejected"]
+    assert run_cli(dataset_dir, tmp_path, "--smooth", "--mode", "localize") == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--smooth solves full SLAM" in err
+
+
 def test_initial_pose_from_the_landmarks_for_a_robot_without_groundtruth(dataset_dir, tmp_path, capsys):
     """--x0 landmarks: the start from the first sightings of the surveyed landmarks; --x0 X,Y,THETA as given."""
     blind = tmp_path / "blind"
