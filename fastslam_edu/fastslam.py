@@ -802,6 +802,17 @@ def _segments(stream: EventStream, cut_times=()):
         start = end + 1
 
 
+def stream_commands(stream: EventStream, params: FastSLAMParams):
+    """The stream's commands times ``params.odometry_scale``, and its time steps, checked: ``(u (N, 2), dt (N,))``."""
+    u = np.asarray(stream.u, dtype=float) * np.asarray(params.odometry_scale, dtype=float)
+    dt = np.asarray(stream.dt, dtype=float)
+    if not (np.isfinite(u).all() and np.isfinite(dt).all()) or (dt < 0).any():
+        bad = np.flatnonzero(~np.isfinite(u).all(axis=1) | ~np.isfinite(dt) | (dt < 0))
+        raise ValueError(f"the event stream has non-finite commands or negative time steps ({len(bad)} step(s), "
+                         f"the first at step {bad[0]}, t = {stream.t[bad[0]]!r})")
+    return u, dt
+
+
 def run_fastslam(
     stream: EventStream,
     params: FastSLAMParams = FastSLAMParams(),
@@ -872,10 +883,7 @@ def run_fastslam(
 
         bar = tqdm(total=N, unit="step", desc=f"FastSLAM M={M}", mininterval=0.5)
     t_start = time.perf_counter()
-    u_all = np.asarray(stream.u, dtype=float) * np.asarray(params.odometry_scale, dtype=float)
-    dt_all = np.asarray(stream.dt, dtype=float)
-    if not (np.isfinite(u_all).all() and np.isfinite(dt_all).all()) or (dt_all < 0).any():
-        raise ValueError("the event stream has non-finite commands or negative time steps")
+    u_all, dt_all = stream_commands(stream, params)
     R_all = params.measurement_covariance(stream.z)  # R of every measurement, once
     w = particles.weights
     for s, e in _segments(stream, () if kidnap is None else (kidnap[0],)):

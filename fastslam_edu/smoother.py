@@ -49,7 +49,7 @@ from scipy.sparse.linalg import splu
 
 from .angles import wrap_angle
 from .datasets.log import EventStream
-from .fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions
+from .fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions, stream_commands
 from .measurement import jacobian_landmark, jacobian_pose, landmark_from_measurement, range_bearing
 from .motion import MotionNoise, path_from_increments, segment_increments
 from .se2 import relative
@@ -130,10 +130,11 @@ def keyframe_steps(stream: EventStream, max_gap_s: float = 1.0) -> np.ndarray:
 def dead_reckoning(stream: EventStream, x0, odometry_scale=(1.0, 1.0)) -> np.ndarray:
     """The pose after every step from the commands alone: shape (len(stream), 3), θ continuous.
 
-    The filter's motion model (:func:`fastslam_edu.motion.segment_increments`) without noise.
+    The filter's motion model (:func:`fastslam_edu.motion.segment_increments`) without noise,
+    with the commands times ``odometry_scale`` (:func:`fastslam_edu.fastslam.stream_commands`).
     """
     x0 = np.asarray(x0, dtype=float).reshape(1, 3)
-    u = np.asarray(stream.u, dtype=float) * np.asarray(odometry_scale, dtype=float)
+    u, _ = stream_commands(stream, FastSLAMParams(odometry_scale=tuple(odometry_scale)))
     eps = np.zeros((1, len(stream), 2))
     dx, dy, theta = segment_increments(x0, u, stream.dt, MotionNoise(), eps)
     return path_from_increments(x0, dx, dy, theta, wrap=False)[0]
@@ -395,7 +396,8 @@ def smooth(
     params : FastSLAMParams, optional
         The model: ``motion_noise``, ``measurement_covariance``, ``range_std_slope``,
         ``odometry_scale``, ``measurement_correlation_s`` (tempering) and ``gate_chi2``.
-        Default ``FastSLAMParams()``.
+        Default ``FastSLAMParams()``. (Its ``mode`` plays no part: the smoother always estimates
+        path and map together.)
     initial : FastSLAMResult, optional
         A filter run on the same stream to start from (its weighted-mean poses at the
         keyframes, its map). Default: dead reckoning, landmarks from their first sighting.

@@ -214,3 +214,21 @@ def test_bad_input_gets_a_clear_message():
                                 offsets=stream.offsets[:-5])
     with pytest.raises(ValueError, match="same stream"):
         smooth(short, initial=filt)
+
+
+def test_bad_commands_are_refused_with_the_step():
+    _, _, stream = simulate(14, duration=10.0)
+    u = stream.u.copy()
+    u[7, 1] = np.nan
+    with pytest.raises(ValueError, match="non-finite commands .* step 7"):
+        smooth(dataclasses.replace(stream, u=u))
+
+
+def test_without_sightings_the_smoother_is_dead_reckoning():
+    _, _, stream = simulate(15, duration=10.0)
+    blind = dataclasses.replace(stream, offsets=np.zeros_like(stream.offsets), z=np.zeros((0, 2)),
+                                landmark=np.zeros(0, dtype=np.int64))
+    result = smooth(blind)
+    path = dead_reckoning(blind, blind.x0)
+    np.testing.assert_allclose(result.poses[:, :2], path[result.steps, :2], atol=1e-6)
+    assert not result.observed.any() and result.measurements_used == 0
