@@ -266,7 +266,7 @@ class _Problem:
         W = self.Wm[active]
         rm = np.einsum("nij,nj->ni", W, em)
         Jx, Jm = W @ Jx, W @ Jm
-        # sparse layout: row blocks prior (3), odometry (3 each), sightings (2 each)
+        # sparse layout: row blocks prior (3), odometry (3 each), sightings (2 each), landmark anchors (2 each)
         F, n = N - 1, len(k)
         rows, cols, vals = [], [], []
 
