@@ -193,15 +193,13 @@ def odometry_residuals(xa: np.ndarray, xb: np.ndarray, delta: np.ndarray):
     ``xa``, ``xb``, ``delta`` (F, 3). Returns ``(e (F, 3), Ja (F, 3, 3), Jb (F, 3, 3))`` with
     ``Ja = ∂e/∂x_a``, ``Jb = ∂e/∂x_b``.
     """
+    rel = relative(xa, xb)  # (R(θ_a)ᵀ (t_b − t_a), θ_b − θ_a)
+    e = wrap_pose_error(rel - delta)
     c, s = np.cos(xa[:, 2]), np.sin(xa[:, 2])
-    px, py = xb[:, 0] - xa[:, 0], xb[:, 1] - xa[:, 1]
-    e = np.stack([c * px + s * py - delta[:, 0], -s * px + c * py - delta[:, 1],
-                  wrap_angle(xb[:, 2] - xa[:, 2] - delta[:, 2])], axis=1)
     Jb = np.zeros((len(xa), 3, 3))
     Jb[:, 0, 0], Jb[:, 0, 1], Jb[:, 1, 0], Jb[:, 1, 1], Jb[:, 2, 2] = c, s, -s, c, 1.0
     Ja = -Jb
-    Ja[:, 0, 2] = -s * px + c * py
-    Ja[:, 1, 2] = -c * px - s * py
+    Ja[:, 0, 2], Ja[:, 1, 2] = rel[:, 1], -rel[:, 0]  # turning x_a swings x_b about it
     return e, Ja, Jb
 
 
@@ -350,27 +348,28 @@ def _levenberg_marquardt(problem: _Problem, v, active, *, huber, max_iterations,
     return v, it, cost
 
 
+def _inverse_block(lu, n: int, cols: np.ndarray) -> np.ndarray:
+    """Rows and columns ``cols`` of the inverse of the factorised ``n × n`` matrix ``lu``."""
+    E = np.zeros((n, len(cols)))
+    E[cols, np.arange(len(cols))] = 1.0
+    return lu.solve(E)[cols]
+
+
 def _laplace(problem: _Problem, v, active, with_poses=True):
     """Standard deviations of the poses and covariances of the landmarks: blocks of ``(JᵀJ)⁻¹``."""
     _, J, _ = problem.evaluate(v, active)
     lu = splu((J.T @ J).tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0)
-    n = len(v)
-    N = problem.n_poses
+    n, N = len(v), problem.n_poses
     K = (n - 3 * N) // 2
-    cov_lm = np.empty((K, 2, 2))
-    for k in range(K):  # two columns of the inverse per landmark
-        E = np.zeros((n, 2))
-        E[3 * N + 2 * k, 0] = E[3 * N + 2 * k + 1, 1] = 1.0
-        cov_lm[k] = lu.solve(E)[3 * N + 2 * k: 3 * N + 2 * k + 2]
+    block = _inverse_block(lu, n, 3 * N + np.arange(2 * K)).reshape(K, 2, K, 2)
+    cov_lm = block[np.arange(K), :, np.arange(K), :]  # the 2×2 blocks on the diagonal
     if not with_poses:
         return np.full((N, 3), np.nan), cov_lm
-    # pose variances: the diagonal of the inverse, solved in chunks of columns to bound memory
+    # pose variances: the diagonal of the inverse, in chunks of columns to bound memory
     var = np.empty(3 * N)
     for start in range(0, 3 * N, 600):
         cols = np.arange(start, min(start + 600, 3 * N))
-        E = np.zeros((n, len(cols)))
-        E[cols, np.arange(len(cols))] = 1.0
-        var[cols] = lu.solve(E)[cols, np.arange(len(cols))]
+        var[cols] = np.diag(_inverse_block(lu, n, cols))
     return np.sqrt(np.maximum(var, 0.0)).reshape(N, 3), cov_lm
 
 

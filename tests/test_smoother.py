@@ -14,6 +14,7 @@ from fastslam_edu.metrics import landmark_errors_aligned
 from fastslam_edu.motion import MotionNoise, move_segment
 from fastslam_edu.se2 import relative
 from fastslam_edu.smoother import (
+    PRIOR_STD,
     dead_reckoning,
     keyframe_steps,
     measurement_residuals,
@@ -232,3 +233,12 @@ def test_without_sightings_the_smoother_is_dead_reckoning():
     path = dead_reckoning(blind, blind.x0)
     np.testing.assert_allclose(result.poses[:, :2], path[result.steps, :2], atol=1e-6)
     assert not result.observed.any() and result.measurements_used == 0
+
+
+def test_pose_standard_deviations():
+    """The first pose is pinned by the prior (its σ is the prior's); every σ is finite and positive."""
+    _, _, stream = simulate(16, duration=20.0)
+    result = smooth(stream, _params(), pose_std=True)
+    np.testing.assert_allclose(result.pose_std[0], PRIOR_STD, rtol=0.01)
+    assert np.all(np.isfinite(result.pose_std)) and np.all(result.pose_std > 0)
+    assert np.all(np.isnan(smooth(stream, _params()).pose_std))  # not asked for
