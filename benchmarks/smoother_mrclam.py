@@ -29,21 +29,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fastslam_accuracy import EXTRA, NO_GROUNDTRUTH, ROBOTS, TARGETS, _load  # noqa: E402
+from fastslam_accuracy import EXTRA, NO_GROUNDTRUTH, ROBOTS, TARGETS, _load, _run  # noqa: E402
 from machine import machine_info  # noqa: E402
 
-from fastslam_edu.experiment import params_dict, summarize, summarize_smoother  # noqa: E402
+from fastslam_edu.experiment import params_dict, summarize_smoother  # noqa: E402
 from fastslam_edu.fastslam import FastSLAMParams, run_fastslam  # noqa: E402
 from fastslam_edu.smoother import smooth  # noqa: E402
 
 KEYS = list(TARGETS)
-
-
-def _filter(job) -> dict:
-    dataset, robot, seed = job
-    data, log, stream = _load(dataset, robot)
-    summary = summarize(run_fastslam(stream, FastSLAMParams(), np.random.default_rng(seed)), data, log)
-    return {"dataset": dataset, "robot": robot, "seed": seed, **{k: summary[k] for k in KEYS}}
 
 
 def _smoother(job) -> dict:
@@ -71,7 +64,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     robots = ROBOTS + EXTRA + NO_GROUNDTRUTH
     with ProcessPoolExecutor(args.jobs) as pool:
-        filters = list(pool.map(_filter, [(d, r, s) for d, r in robots for s in range(args.seeds)]))
+        filters = list(pool.map(_run, [(d, r, s, FastSLAMParams()) for d, r in robots for s in range(args.seeds)]))
         smoothers = list(pool.map(_smoother, robots))
     table = []
     for (d, r), sm in zip(robots, smoothers):

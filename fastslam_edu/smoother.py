@@ -50,7 +50,7 @@ from scipy.sparse.linalg import splu
 from .angles import wrap_angle
 from .datasets.log import EventStream
 from .fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions, stream_commands
-from .measurement import jacobian_landmark, jacobian_pose, landmark_from_measurement, range_bearing
+from .measurement import innovation, jacobian_landmark, jacobian_pose, landmark_from_measurement, range_bearing
 from .motion import MotionNoise, path_from_increments, segment_increments
 from .se2 import relative
 
@@ -209,9 +209,7 @@ def measurement_residuals(x: np.ndarray, m: np.ndarray, z: np.ndarray):
     ``x`` (n, 3) poses, ``m`` (n, 2) landmarks, ``z`` (n, 2) sightings. Returns
     ``(e (n, 2), Jx (n, 2, 3), Jm (n, 2, 2))``: ``Jx = −∂h/∂x``, ``Jm = −∂h/∂m = −H``.
     """
-    z_hat = range_bearing(x, m)
-    e = np.stack([z[:, 0] - z_hat[:, 0], wrap_angle(z[:, 1] - z_hat[:, 1])], axis=1)
-    return e, -jacobian_pose(x, m), -jacobian_landmark(x, m)
+    return innovation(z, range_bearing(x, m)), -jacobian_pose(x, m), -jacobian_landmark(x, m)
 
 
 def whitening(cov: np.ndarray) -> np.ndarray:
