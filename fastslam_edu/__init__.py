@@ -21,6 +21,7 @@ Landmark SLAM (FastSLAM 1.0)
     fastslam_tree   the filter with tree-backed maps (O(M log K) resampling)
     smoother        least squares over the whole log: the most probable path and map under the same model
     metrics         landmark and trajectory errors, SE(2) alignment
+    consistency     NEES: is the filter's reported uncertainty honest (the particle cloud's covariance)
     initial_pose    the start pose from the first sightings of surveyed landmarks (robots without groundtruth)
     experiment      one MR.CLAM run end to end (load, audit, run, score)
     plotting        figures of a run

@@ -824,6 +824,7 @@ def run_fastslam(
     kidnap: tuple[float, tuple[float, float, float]] | None = None,
     progress: bool = False,
     particle_class=None,
+    monitor=None,
 ) -> FastSLAMResult:
     """Run FastSLAM 1.0 over an event stream.
 
@@ -844,6 +845,12 @@ def run_fastslam(
         (Montemerlo's trees); anything with the same ``initial``, ``with_known_map``,
         ``update``, ``select``, ``weights`` and ``to_particle_set``. The result's
         ``particles`` is always dense; ``final`` is the set as stored.
+    monitor : callable ``monitor(t, particles, w)``, optional
+        Called after every measurement step (after resampling) with the step's
+        time, the particle set and the normalised weights the step's estimate
+        used: a way to look inside the filter (chapter "Is the filter's
+        uncertainty honest?") without changing it. It must not modify them;
+        its time counts in ``filter_seconds``.
     """
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
     x0 = stream.x0 if x0 is None else np.asarray(x0, dtype=float)
@@ -933,6 +940,8 @@ def run_fastslam(
             w = np.full(M, 1.0 / M) if did else particles.weights
             pose_mean[e] = combined_pose(particles.poses, w)
             pose_best[e] = particles.poses[int(np.argmax(w))]
+            if monitor is not None:
+                monitor(t_e, particles, w)
         if bar is not None:
             bar.update(e - s + 1)
     filter_seconds = time.perf_counter() - t_start
