@@ -70,6 +70,26 @@ def load_mrclam(path, robot: int, *, groundtruth_file=None, audit: bool = True):
     return dataset, log, notes
 
 
+def dropped_sightings_notes(log: RobotLog) -> list[str]:
+    """Notes on the measurement rows the reader set aside as neither landmark nor robot (``log.dropped``).
+
+    Sightings of the other robots are expected and only counted (in the run's summary); a barcode in no
+    table, or a subject without a surveyed position, is a misread or a gap in the files and is noted.
+    """
+    notes = []
+    where = f"robot {log.robot} measurements ({log.source or 'no source'})"
+    unknown = log.dropped.get("unknown_barcodes", {})
+    if unknown:
+        listed = ", ".join(f"{b} ({n}x)" for b, n in unknown.items())
+        notes.append(f"{where}: {sum(unknown.values())} sighting(s) of barcodes in no table skipped: {listed}")
+    orphans = log.dropped.get("subjects_without_groundtruth", {})
+    if orphans:
+        listed = ", ".join(f"{s} ({n}x)" for s, n in orphans.items())
+        notes.append(f"{where}: {sum(orphans.values())} sighting(s) of subjects with no surveyed position "
+                     f"skipped: {listed}")
+    return notes
+
+
 def summarize(result: FastSLAMResult, dataset: Dataset, log: RobotLog) -> dict:
     """The figures of a run against groundtruth (see the module docstring)."""
     out: dict = {
@@ -177,6 +197,14 @@ def params_table(params: FastSLAMParams, name: str = "FastSLAMParams()"):
     return pd.Series(rows, dtype=object).to_frame(name)
 
 
+def _skipped(log: RobotLog) -> dict:
+    """``log.dropped`` as JSON: counts of the measurement rows that are not landmark sightings."""
+    d = log.dropped
+    return {"robot_sightings": int(d.get("robot_sightings", 0)),
+            "unknown_barcodes": {str(b): int(n) for b, n in d.get("unknown_barcodes", {}).items()},
+            "subjects_without_groundtruth": {str(k): int(n) for k, n in d.get("subjects_without_groundtruth", {}).items()}}
+
+
 def run_mrclam(
     path,
     robot: int,
@@ -201,6 +229,7 @@ def run_mrclam(
     the log, the event stream and the notes.
     """
     dataset, log, notes = load_mrclam(path, robot, groundtruth_file=groundtruth_file, audit=audit)
+    notes += dropped_sightings_notes(log)
     if isinstance(x0, str):
         if x0 != "landmarks":
             raise ValueError(f'x0 must be a pose (x, y, theta) or "landmarks", got {x0!r}')
@@ -230,6 +259,6 @@ def run_mrclam(
     summary = summarize(result, dataset, log)
     summary.update(
         dataset=str(path), robot=robot, rate=rate, seed=seed, params=params_dict(params), notes=notes,
-        x0=[float(v) for v in stream.x0],
+        x0=[float(v) for v in stream.x0], sightings_skipped=_skipped(log),
     )
     return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes}

@@ -45,6 +45,29 @@ def run_cli(dataset_dir: Path, out: Path, *extra: str) -> int:
                  "--json", str(out / "out.json"), "--quiet", *extra])
 
 
+def test_sightings_of_unknown_barcodes_are_skipped_and_reported(dataset_dir, tmp_path, capsys):
+    """A misread barcode (one in no table) is not a landmark: the run skips it, says so on stderr naming the
+    barcode and the count, and the JSON counts it with the robot sightings."""
+    folder = tmp_path / "MRCLAM_Sim"
+    shutil.copytree(dataset_dir, folder)
+    path = folder / "Robot1_Measurement.dat"
+    lines = path.read_text().splitlines(keepends=True)
+    rows = [i for i, line in enumerate(lines) if not line.startswith("#")]
+    for i in rows[10:13]:  # three sightings now carry barcode 96, which no subject has
+        fields = lines[i].split("\t")
+        fields[1] = "96"
+        lines[i] = "\t".join(fields)
+    path.write_text("".join(lines))
+    assert main(["run", "--data", str(folder), "--robot", "1", "--particles", "20",
+                 "--json", str(tmp_path / "out.json")]) == 0
+    err = capsys.readouterr().err
+    assert "3 sighting(s) of barcodes in no table skipped: 96 (3x)" in err
+    summary = json.loads((tmp_path / "out.json").read_text())
+    assert summary["sightings_skipped"]["unknown_barcodes"] == {"96": 3}
+    assert summary["sightings_skipped"]["robot_sightings"] == 0  # one simulated robot: nobody else to see
+    assert summary["measurements_used"] + summary["measurements_rejected"] == len(rows) - 3
+
+
 def test_run_writes_json_and_plot(dataset_dir, tmp_path, capsys):
     assert run_cli(dataset_dir, tmp_path, "--plot", str(tmp_path / "out.png")) == 0
     captured = capsys.readouterr()
