@@ -193,7 +193,7 @@ class SpreadRecorder:
             if copies == 0:
                 return
         mean, cov = pose_covariance(particles.poses, w)
-        spread = combined_map(particles) if self._maps else None
+        spread = combined_map(particles.to_particle_set()) if self._maps else None  # dense, also for tree maps
         for _ in range(copies):
             self.t.append(float(t))
             self.mean.append(mean)

@@ -847,8 +847,8 @@ def run_fastslam(
         ``particles`` is always dense; ``final`` is the set as stored.
     monitor : callable ``monitor(t, particles, w)``, optional
         Called after every measurement step (after resampling) with the step's
-        time, the particle set and the normalised weights the step's estimate
-        used: a way to look inside the filter (chapter "Is the filter's
+        time, the particle set as stored (``particle_class``) and the normalised
+        weights the step's estimate used: a way to look inside the filter (chapter "Is the filter's
         uncertainty honest?") without changing it. It must not modify them;
         its time counts in ``filter_seconds``.
     """

@@ -172,3 +172,15 @@ def test_simulator_params_take_the_simulators_noise():
     p = simulator_params(c, n_particles=7)
     np.testing.assert_allclose(p.measurement_covariance(np.array([[4.0, 0.0]]))[0], np.diag([0.01, 0.0009]))
     assert p.motion_noise == c.odometry_noise and p.n_particles == 7 and p.measurement_correlation_s is None
+
+
+def test_spread_recorder_reads_tree_backed_particles_too():
+    from fastslam_edu.fastslam_tree import TreeParticleSet
+
+    data, log, stream = simulate(1, duration=10.0)
+    params = simulator_params(n_particles=20)
+    dense, tree = SpreadRecorder(maps=True), SpreadRecorder(maps=True)
+    run_fastslam(stream, params, 3, monitor=dense)
+    run_fastslam(stream, params, 3, monitor=tree, particle_class=TreeParticleSet)
+    np.testing.assert_allclose(np.array(tree.cov), np.array(dense.cov), atol=1e-12)
+    np.testing.assert_allclose(tree.maps[-1][0], dense.maps[-1][0], atol=1e-12)
