@@ -92,7 +92,7 @@ class FastSLAMParams:
       increments against groundtruth give 0.013–0.016 m/√s and 0.016–0.034 rad/√s
       at 1–4 s windows, but the error variance grows faster than linearly
       (errors are correlated over seconds: the robots lag the commands by
-      ~0.2 s and turn ~10 % less than commanded). Over the 10–60 s the filter
+      ~0.2 s and turn 5–10 % less than commanded). Over the 10–60 s the filter
       dead-reckons between sightings, the heading error is ~0.3 rad per minute,
       so the defaults are :math:`\\sigma_v = 0.02` m/√s and :math:`\\sigma_\\omega = 0.05` rad/√s.
     * **Gate**: a sighting is rejected when :math:`d^2 > 27.6` (exceeded by one good
@@ -107,8 +107,8 @@ class FastSLAMParams:
       per-particle floored gate (reject when particles holding half the weight
       are beyond the gate) gave 1.39 m, worst 4.3 m, rejecting 1,000 of 2,453
       sightings of a filter that was merely uncertain. After a kidnap the
-      escape brings the filter back within a minute (chapter "The write-up's
-      experiments"), where the floored gate took ~500 s.
+      escape brings the filter back within one to two minutes (45–109 s in
+      chapter "The write-up's experiments"), where the floored gate took ~500 s.
     * **Tempered likelihoods**: a sighting :math:`\\Delta t` after the previous sighting of
       the same landmark weighs the particles with its likelihood to the power
       :math:`\\min(1, \\Delta t/\\tau)`, :math:`\\tau = 4` s (:func:`evidence_fractions`: the
