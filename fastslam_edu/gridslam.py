@@ -237,8 +237,11 @@ class GridSLAMParams:
         """The write-up's algorithm exactly: ``w ∝ exp(c)`` with the 0/1 map, resampling every step, no matching.
 
         ``hit_sigma = 0`` (an endpoint counts only in its own cell),
-        ``temperature = 1``, ``resample_threshold = 1`` (``N_eff < M``: every
-        step unless the weights are all equal), ``match_iterations = 0``.
+        ``temperature = 1``, ``resample_threshold = 1`` (``N_eff < M``, as the
+        write-up computes it: every step whose weights are not all equal, and
+        with all-equal weights whenever rounding puts :math:`1/\\sum w^2` just
+        below M, as it does for some M, e.g. 5, 6 and 10, but not 4 or 30),
+        ``match_iterations = 0``.
         """
         base = dict(hit_sigma=0.0, temperature=1.0, resample_threshold=1.0, match_iterations=0)
         base.update(changes)

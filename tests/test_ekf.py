@@ -14,6 +14,7 @@ from scipy.stats import multivariate_normal
 from fastslam_edu.ekf import (
     gaussian_log_likelihood,
     initialise_landmark,
+    innovation_statistics,
     innovation_unchecked,
     kalman_correction_unchecked,
     update_landmark,
@@ -381,3 +382,48 @@ def test_bad_inputs_rejected():
         initialise_landmark(x, [np.inf, 0.3], R)
     with pytest.raises(ValueError, match=r"gaussian_log_likelihood: Q must be symmetric"):
         gaussian_log_likelihood([0.0, 0.0], np.zeros((2, 2)))
+
+
+# -- added: innovation statistics, correlated noise, refusals -----------------------------------
+
+
+def test_innovation_statistics_match_filterpy(cases):
+    """ν and d² = νᵀQ⁻¹ν against filterpy's residual y and Mahalanobis distance (±π cases included)."""
+    (mu, Sigma, x, z, R), _ = cases
+    nu, d2 = innovation_statistics(mu, Sigma, x, z, R)
+    assert nu.shape == (len(mu), 2) and d2.shape == (len(mu),)
+    for i in range(len(mu)):
+        ekf = ExtendedKalmanFilter(dim_x=2, dim_z=2)
+        ekf.x, ekf.P, ekf.R = mu[i].reshape(2, 1).copy(), Sigma[i].copy(), R[i].copy()
+        ekf.update(z[i].reshape(2, 1), H_by_hand, h_by_hand, args=(x[i],), hx_args=(x[i],),
+                   residual=residual_by_hand)
+        np.testing.assert_allclose(nu[i], ekf.y.ravel(), rtol=0, atol=1e-12)
+        assert abs(d2[i] - ekf.mahalanobis**2) <= 1e-9 * max(1.0, d2[i]), i
+
+
+def test_correlated_measurement_noise_matches_filterpy():
+    """R with off-diagonal terms (correlated range and bearing errors): μ', Σ', log w as filterpy."""
+    rng = np.random.default_rng(15)
+    mu, Sigma, x, z, R = random_cases(rng, 40)
+    rho = rng.uniform(-0.8, 0.8, 40)
+    R[:, 0, 1] = R[:, 1, 0] = rho * np.sqrt(R[:, 0, 0] * R[:, 1, 1])
+    mu_new, Sigma_new, loglik = update_landmark(mu, Sigma, x, z, R)
+    for i in range(40):
+        ref_mu, ref_P, ref_ll, _ = filterpy_update(mu[i], Sigma[i], x[i], z[i], R[i])
+        np.testing.assert_allclose(mu_new[i], ref_mu, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(Sigma_new[i], ref_P, rtol=0, atol=1e-9)
+        assert abs(loglik[i] - ref_ll) < 1e-9
+
+
+def test_asymmetric_covariance_is_refused():
+    """Σ with A₀₁ ≠ A₁₀ far beyond rounding is no covariance, even with A₀₀ > 0 and det > 0."""
+    x, mu, z, R = np.zeros(3), np.array([2.0, 1.0]), np.array([2.2, 0.4]), np.diag([0.01, 0.001])
+    with pytest.raises(ValueError, match=r"update_landmark: Sigma must be symmetric positive definite"):
+        update_landmark(mu, np.array([[1.0, 0.5], [0.3, 1.0]]), x, z, R)
+
+
+def test_update_landmark_one_refuses_batches():
+    """The teaching version takes one landmark; a batch is refused with a pointer to update_landmark."""
+    mu, Sigma, x, z, R = random_cases(np.random.default_rng(16), 2)
+    with pytest.raises(ValueError, match="one landmark only"):
+        update_landmark_one(mu, Sigma, x, z, R[0])

@@ -447,6 +447,39 @@ def test_gate_reinitialises_a_landmark_seen_once():
     np.testing.assert_array_equal(ps.logw, 0.0)
 
 
+def test_gate_reinitialises_a_young_landmark_at_no_cost_when_another_particle_explains():
+    """z fits particle 0 (textbook EKF update and weight); for particles 1 and 2, which read the landmark once,
+    it is an outlier: closed-form re-initialisation x + r (cos(θ + φ), sin(θ + φ)), log weight unchanged."""
+    ps = _gate_world()
+    ps.count[:, 0] = [2, 1, 1]
+    z = np.array([2.02, 0.01])
+    expected = _textbook(ps, z)
+    assert update_with_measurement(ps, z, 0, R_SIM, gate_chi2=fs.CHI2_2DOF_999)
+    np.testing.assert_allclose(ps.mu[0, 0], expected[0][0], atol=1e-12)
+    assert ps.logw[0] == pytest.approx(expected[0][2], abs=1e-10)
+    ang = ps.poses[1:, 2] + z[1]
+    np.testing.assert_allclose(ps.mu[1:, 0], ps.poses[1:, :2] + 2.02 * np.column_stack([np.cos(ang), np.sin(ang)]),
+                               atol=1e-12)
+    np.testing.assert_array_equal(ps.logw[1:], 0.0)
+    np.testing.assert_array_equal(ps.count[:, 0], [3, 1, 1])
+
+
+def test_gate_escape_starts_exactly_escape_s_after_the_first_unexplained_sighting():
+    """By hand, escape_s = 5: unexplained since t = 1 (kept through later unexplained sightings) escapes from
+    t = 6 on, not at 5.9; an explained sighting ends it; escape_s None never escapes."""
+    g = fs.GateEscape(3, 5.0)
+    g.record(1.0, np.array([0, 1]), np.array([False, True]))
+    assert g.escaped(5.9, np.array([0, 1])).tolist() == [False, False]
+    assert g.escaped(6.0, np.array([0, 1])).tolist() == [True, False]
+    g.record(3.0, np.array([0]), np.array([False]))
+    assert g.escaped(6.0, np.array([0])).tolist() == [True]
+    g.record(7.0, np.array([0]), np.array([True]))
+    assert g.escaped(100.0, np.array([0, 2])).tolist() == [False, False]
+    never = fs.GateEscape(1, None)
+    never.record(0.0, np.array([0]), np.array([False]))
+    assert not never.escaped(1e9, np.array([0])).any()
+
+
 def test_evidence_fractions_closed_form():
     """β = min(1, Δt/τ), Δt since the previous sighting of the same landmark; first sightings count fully."""
     last = np.full(4, -np.inf)
@@ -679,6 +712,8 @@ def test_combined_map_mixture_closed_form():
         ({"resample_threshold": -0.1}, "resample_threshold"),
         ({"n_particles": 0}, "n_particles"),
         ({"gate_chi2": 0.0}, "gate_chi2"),
+        ({"measurement_cov": np.diag([0.01, 0.0])}, "positive definite"),
+        ({"gate_escape_s": -1.0}, "gate_escape_s"),
         ({"range_std_slope": -0.01}, "range_std_slope"),
         ({"range_std_slope": np.nan}, "range_std_slope"),
     ],
@@ -712,3 +747,32 @@ def test_run_errors(sim2):
     bad_u[5, 0] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
         run_fastslam(dataclasses.replace(stream, u=bad_u), MATCHED)
+
+
+def test_run_rejects_negative_time_steps(sim2):
+    _, _, stream = sim2
+    dt = stream.dt.copy()
+    dt[7] = -0.01
+    with pytest.raises(ValueError, match="negative time steps"):
+        run_fastslam(dataclasses.replace(stream, dt=dt), MATCHED)
+
+
+def test_best_pose_and_best_map_are_the_highest_weight_particle(sim2):
+    """Never resampling (the weights stay uneven): at each measurement step pose_best is the pose of argmax w of
+    the weights handed to the monitor, and landmarks_best is the final map of argmax log w."""
+    _, _, stream = sim2
+    p = dataclasses.replace(MATCHED, n_particles=10, resample_threshold=0.0)
+    seen, uneven = {}, []
+
+    def record(t, particles, w):
+        seen[t] = particles.poses[int(np.argmax(w))].copy()
+        uneven.append(np.argmax(w) != np.argmin(w))
+
+    r = run_fastslam(stream, p, 3, monitor=record)
+    assert r.n_resamples == 0 and len(seen) == len(uneven) and sum(uneven) > 10
+    steps = np.searchsorted(r.t, list(seen))
+    np.testing.assert_array_equal(r.pose_best[steps], np.array(list(seen.values())))
+    best = int(np.argmax(r.particles.logw))
+    assert best != int(np.argmin(r.particles.logw))
+    np.testing.assert_array_equal(r.landmarks_best[r.observed], r.particles.mu[best][r.observed])
+    assert np.isnan(r.landmarks_best[~r.observed]).all()

@@ -32,7 +32,7 @@ import pytest
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream
 from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
-from fastslam_edu.fastslam_loop import run_fastslam_loop
+from fastslam_edu.fastslam_loop import Particle, run_fastslam_loop, update_particle
 from fastslam_edu.motion import MotionNoise
 from fastslam_edu.sim import simulate_dataset
 from fastslam_edu.weights import weights_from_log
@@ -166,3 +166,26 @@ def test_the_comparison_can_fail(world, change):
         change = {"loop_params": dataclasses.replace(params, gate_chi2=None)}
     with pytest.raises(AssertionError):
         compare(stream, params, **change)
+
+
+def test_an_outlier_against_a_landmark_seen_once_reinitialises_it():
+    """Closed form of the inverse model: the landmark restarts at x + r (cos(θ + φ), sin(θ + φ)) of the new sighting,
+    with σ_r² along the line of sight and r² σ_φ² across it; no weight, and still one sighting."""
+    p = Particle(pose=np.array([1.0, 2.0, 0.5]))
+    update_particle(p, np.array([3.0, 0.2]), 4, R, gate_chi2=GATE)  # first sighting
+    z = np.array([4.0, 1.2])  # 1 m and 1 rad off: far beyond the gate
+    update_particle(p, z, 4, R, gate_chi2=GATE)
+    a = 0.5 + 1.2
+    mu, sigma = p.landmarks[4]
+    np.testing.assert_allclose(mu, [1.0 + 4.0 * np.cos(a), 2.0 + 4.0 * np.sin(a)], atol=1e-12)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    np.testing.assert_allclose(sigma, rot @ np.diag([0.05**2, (4.0 * 0.02) ** 2]) @ rot.T, atol=1e-15)
+    assert p.logw == 0.0 and p.count[4] == 1
+
+
+def test_the_loop_refuses_mode_map():
+    """The loop reference runs only slam and localize (mode "map" is the engine's alone)."""
+    data = simulate_dataset(3, duration=2.0)
+    stream = event_stream(data.robots[1], data.landmark_subjects)
+    with pytest.raises(ValueError, match='runs mode "slam" or "localize"'):
+        run_fastslam_loop(stream, FastSLAMParams(n_particles=2, mode="map"), 0, landmarks=data.landmark_positions)

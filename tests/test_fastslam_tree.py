@@ -30,8 +30,15 @@ from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream, groundtruth_at
 from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
 from fastslam_edu.fastslam_loop import run_fastslam_loop
-from fastslam_edu.fastslam_tree import TreeParticleSet, crossover_k, run_fastslam_tree, step_cost, step_particles
-from fastslam_edu.landmark_tree import count_nodes, tree_depth
+from fastslam_edu.fastslam_tree import (
+    TreeParticleSet,
+    crossover_k,
+    run_fastslam_tree,
+    step_cost,
+    step_particles,
+    update_trees_with_measurements,
+)
+from fastslam_edu.landmark_tree import count_new_nodes, count_nodes, tree_depth
 from fastslam_edu.motion import MotionNoise
 from fastslam_edu.sim import simulate_dataset
 
@@ -172,6 +179,21 @@ def test_select_shares_trees_and_updates_stay_private():
         assert moved.trees[m].get(3).mu[0] > 4.0  # the update pulled it outwards
 
 
+def test_a_particle_for_which_the_sighting_is_an_outlier_keeps_its_tree():
+    """Object identity: the sighting fits particle 0's landmark and is 5 m off particle 1's (seen twice, so
+    not re-initialised); only particle 0 gets a new tree, of depth + 1 new nodes."""
+    parts = TreeParticleSet.initial(2, 8, np.zeros(3))
+    parts.trees = [t.set(3, mu, np.eye(2) * 0.01, count=2) for t, mu in zip(parts.trees, ([4.0, 1.0], [4.0, -4.0]))]
+    old = list(parts.trees)
+    z = np.array([[np.hypot(4.0, 1.0) + 0.02, np.arctan2(1.0, 4.0)]])
+    explained = update_trees_with_measurements(parts, z, [3], np.diag([0.05**2, 0.02**2]), gate_chi2=CHI2_2DOF_999)
+    assert explained.tolist() == [True]
+    assert parts.trees[1] is old[1] and parts.trees[0] is not old[0]
+    assert count_new_nodes(parts.trees, old) == tree_depth(8) + 1
+    np.testing.assert_array_equal(parts.trees[1].get(3).mu, [4.0, -4.0])
+    assert parts.trees[0].get(3).count == 3 and parts.trees[1].get(3).count == 2
+
+
 @pytest.mark.parametrize("K", [64, 1000])
 def test_step_cost_counts(K):
     r = step_cost(K, n_particles=30, repeats=1, min_block_seconds=0.0)
@@ -194,6 +216,24 @@ def test_crossover_k_interpolates_in_log_k():
     assert crossover_k(rows[:2]) is None  # never wins
     with pytest.raises(ValueError, match="sorted"):
         crossover_k(rows[::-1])
+
+
+def test_step_cost_updates_every_landmark_when_k_equals_n_updates():
+    """K = n_updates = 2 is allowed: both leaves of a depth-1 tree change, 3 new nodes per particle (closed form)."""
+    r = step_cost(2, n_particles=5, n_updates=2, repeats=1, min_block_seconds=0.0)
+    assert r["depth"] == 1 and r["tree_nodes_created"] == 5 * 3
+    with pytest.raises(ValueError, match="need K >= 2"):
+        step_cost(1, n_particles=5, n_updates=2, repeats=1, min_block_seconds=0.0)
+    with pytest.raises(ValueError, match="repeats must be >= 1"):
+        step_cost(2, n_particles=5, n_updates=2, repeats=0, min_block_seconds=0.0)
+
+
+def test_crossover_k_ties_and_repeated_k():
+    """By hand: a tie at the largest K is no win (None); a K measured twice is not sorted increasing."""
+    rows = [{"K": K, "dense_seconds": d, "tree_seconds": 1.0} for K, d in ((10, 0.5), (100, 1.0))]
+    assert crossover_k(rows) is None
+    with pytest.raises(ValueError, match="sorted"):
+        crossover_k([rows[0], rows[0]])
 
 
 @pytest.mark.parametrize("bad", [{"n_particles": 0}, {"x0": [0.0, np.nan, 0.0]}, {"n_landmarks": 0}])

@@ -117,6 +117,13 @@ def test_copy_is_independent():
     assert c.log_odds[2, 7] > 0
 
 
+def test_observed_defaults_to_the_nonzero_cells_of_given_log_odds():
+    """Reference: the documented rule (a cell with l != 0 was touched by an update), on a hand-made map."""
+    g = OccupancyGrid(1.0, (0.0, 0.0), (1, 3), log_odds=np.array([[0.0, 2.0, -1.0]]))
+    np.testing.assert_array_equal(g.observed, [[False, True, True]])
+    np.testing.assert_array_equal(g.binary(), [[-1, 1, 0]])
+
+
 # --------------------------------------------------------------------------- coordinates
 
 
@@ -286,6 +293,9 @@ def test_bad_input_raises_clear_errors():
         ray_cells([0.5, 0], [[1, 1]])
     with pytest.raises(ValueError, match="resolution"):
         OccupancyGrid(resolution=-1.0, origin=(0, 0), shape=(2, 2))
+    for shape in [(0, 3), (3, 0)]:  # an empty grid has no cell to hold the robot
+        with pytest.raises(ValueError, match="positive integers"):
+            OccupancyGrid(resolution=1.0, origin=(0, 0), shape=shape)
     with pytest.raises(ValueError, match="l_free"):
         OccupancyGrid(resolution=1.0, origin=(0, 0), shape=(2, 2), l_free=0.3)
     with pytest.raises(ValueError, match="shape"):

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
+from scipy.special import logsumexp
 
 from fastslam_edu.grid import OccupancyGrid, bresenham, map_correlation, scan_endpoints
 from fastslam_edu.gridslam import (
@@ -232,6 +234,41 @@ def test_rao_blackwellised_variant_runs_and_keeps_a_map_per_particle(world):
     np.testing.assert_allclose(g.log_odds, res.grid.log_odds, atol=1e-4)
 
 
+@pytest.mark.parametrize("runner", [run_grid_slam, run_grid_slam_loop])
+def test_temperature_divides_the_scores_in_the_first_weights(world, runner):
+    """Reference: scan 1 re-scored by the grid module on the map of scan 0 from x0; closed-form softmax of c / T."""
+    temp = 2.5
+    p = GridSLAMParams(n_particles=6, hit_sigma=0.0, margin=1.0, resample_threshold=0.0, match_iterations=0,
+                       temperature=temp)
+    res = runner(world.log, p, np.random.default_rng(5), n_scans=2)
+    g = OccupancyGrid(res.grid.resolution, res.grid.origin, res.grid.shape, l_max=p.l_max)
+    x0 = world.log.poses[0]
+    r, a = world.log.beams(0)
+    g.update(x0, scan_endpoints(x0, r, a))
+    r, a = world.log.beams(1)
+    c = map_correlation(g, scan_endpoints(res.particles, r, a))
+    assert c.max() - c.min() >= 3  # the particles score differently, so T matters
+    np.testing.assert_allclose(res.log_weights, c / temp - logsumexp(c / temp), atol=1e-9)
+
+
+def test_writeup_threshold_does_not_resample_equal_weights(world):
+    """Reference: Doucet's rule N_eff < M; noise-free particles stay identical, so N_eff = M exactly (M = 4)."""
+    still = dict(alpha_tt=0.0, alpha_tr=0.0, alpha_rt=0.0, alpha_rr=0.0, sigma_t0=0.0, sigma_theta0=0.0)
+    res = run_grid_slam(world.log, GridSLAMParams.writeup(n_particles=4, margin=1.0, **still),
+                        np.random.default_rng(0), n_scans=8)
+    np.testing.assert_array_equal(res.n_eff, 4.0)
+    assert not res.resampled.any()
+
+
+def test_scan_match_leaves_a_pose_alone_on_a_map_with_nothing_occupied():
+    """Reference: on an empty map every candidate scores 0, so no move raises the score and the pose stays put."""
+    g = OccupancyGrid.around((-5, 5, -5, 5), 0.1)
+    start = np.array([[0.3, -0.2, 0.4], [1.0, 1.0, -2.0]])
+    a = np.linspace(-1.5, 1.5, 31)
+    moved = scan_match(start, g.log_odds, g, np.full(31, 2.0), a, GridSLAMParams(match_iterations=5))
+    np.testing.assert_array_equal(moved, start)
+
+
 def test_scan_match_pulls_a_displaced_pose_back():
     """On a map built from the true pose, a pose moved by (0.06, −0.05, 0.03) climbs back near the truth."""
     w = simulate_laser_world(5)
@@ -256,6 +293,16 @@ def test_bad_input_is_rejected(world):
         GridSLAMParams(resampler="roulette")
     with pytest.raises(ValueError, match="unknown setting"):
         GridSLAMParams().with_(particles=3)
+    for bad in (-0.1, 1.5):
+        with pytest.raises(ValueError, match="resample_threshold"):
+            GridSLAMParams(resample_threshold=bad)
+    with pytest.raises(ValueError, match="max_range"):
+        GridSLAMParams(min_range=0.5, max_range=0.5)  # an empty window of ranges
+    one = dataclasses.replace(world.log, t=world.log.t[:1], ranges=world.log.ranges[:1], poses=world.log.poses[:1],
+                              odometry=None if world.log.odometry is None else world.log.odometry[:1],
+                              last_odom=None if world.log.last_odom is None else world.log.last_odom[:1])
+    with pytest.raises(ValueError, match="at least 2 scans"):
+        run_grid_slam(one, GridSLAMParams(), np.random.default_rng(0))
     u = np.zeros((len(world.log), 3))
     u[5, 1] = np.nan
     with pytest.raises(ValueError, match="scan 5"):

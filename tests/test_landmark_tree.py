@@ -216,6 +216,15 @@ def test_set_each_and_gather_against_one_by_one():
     np.testing.assert_array_equal(d_sigma[1, 4], np.eye(2))
 
 
+def test_gather_of_sparse_trees_returns_the_counts_that_were_set():
+    """Counts set by hand (3 and 5) come back from gather where some particle lacks the key (0 there)."""
+    trees = [LandmarkTree.empty(8).set(2, *value(1.0), count=3), LandmarkTree.empty(8),
+             LandmarkTree.empty(8).set(2, *value(2.0), count=5).set(6, *value(3.0), count=2)]
+    _, _, seen, count = gather(trees, [2, 6])
+    assert seen.tolist() == [[True, False], [False, False], [True, True]]
+    assert count.tolist() == [[3, 0], [0, 0], [5, 2]]
+
+
 # ---------------------------------------------------------------- immutability and bad input
 
 
@@ -286,3 +295,15 @@ def test_bulk_functions_reject_mismatches():
         set_each([LandmarkTree.empty(8)] * 2, 0, np.zeros((2, 2)), np.tile(np.eye(2), (2, 1, 1)), which=[1, 0])
     with pytest.raises(ValueError, match="no trees"):
         gather([], [0])
+
+
+def test_bad_seen_and_which_masks_raise():
+    """A seen mask of ints, or of the wrong length, and a which mask of the wrong length are refused."""
+    mu, sigma = np.zeros((3, 2)), np.tile(np.eye(2), (3, 1, 1))
+    with pytest.raises(ValueError, match="seen must be a bool array"):
+        LandmarkTree.from_arrays(mu, sigma, seen=np.array([1, 0, 1]))
+    with pytest.raises(ValueError, match="seen must be a bool array"):
+        LandmarkTree.from_arrays(mu, sigma, seen=np.array([True, False]))
+    with pytest.raises(ValueError, match="which"):
+        set_each([LandmarkTree.empty(8)] * 2, 0, np.zeros((2, 2)), np.tile(np.eye(2), (2, 1, 1)),
+                 which=np.array([True]))

@@ -233,3 +233,12 @@ def test_wrong_shape_and_negative_range_rejected():
         range_bearing([0.0, 0.0], [1.0, 1.0])
     with pytest.raises(ValueError, match=r"negative range r = -1\.0"):
         landmark_from_measurement([0.0, 0.0, 0.0], [-1.0, 0.2])
+
+
+def test_jacobian_inverse_refuses_negative_range():
+    """G = ∂h⁻¹/∂z needs r ≥ 0 like h⁻¹ itself (the documented domain); r = 0 is still allowed."""
+    with pytest.raises(ValueError, match=r"jacobian_inverse: negative range r = -0\.5 m in z at batch index \(1,\)"):
+        jacobian_inverse([0.0, 0.0, 0.0], [[1.0, 0.2], [-0.5, 0.2]])
+    # at r = 0 the closed form is [[cos, 0], [sin, 0]] (column φ scales with r)
+    np.testing.assert_allclose(jacobian_inverse([0.0, 0.0, 0.3], [0.0, 0.2]),
+                               [[np.cos(0.5), 0.0], [np.sin(0.5), 0.0]], atol=1e-15)

@@ -17,6 +17,7 @@ from fastslam_edu.angles import wrap_angle
 from fastslam_edu.motion import (
     MotionNoise,
     move,
+    move_segment,
     propagate,
     propagate_arc,
     sample_motion,
@@ -307,3 +308,50 @@ def test_bad_input_raises_clear_value_error(call, message):
 def test_n_draws():
     assert MotionNoise().n_draws == 2
     assert MotionNoise("state").n_draws == 3
+
+
+# --------------------------------------------------------------------------- segments and wrapping
+
+
+@pytest.mark.parametrize(
+    "noise",
+    [MotionNoise(sigma_v=0.2, sigma_omega=0.3), MotionNoise("state", sigma_xy=0.1, sigma_theta=0.4)],
+    ids=["control", "state"],
+)
+def test_move_segment_matches_loop_reference_step_by_step(noise):
+    """move_segment over L steps = L steps of the equation-by-equation loop reference, headings wrapped."""
+    rng = np.random.default_rng(21)
+    m, steps = 30, 40
+    x0 = np.column_stack([rng.normal(size=(m, 2)), np.pi - rng.uniform(0.0, 0.3, m)])  # start near +π
+    u = np.column_stack([rng.uniform(0.1, 0.5, steps), rng.uniform(0.5, 2.0, steps)])  # turning left: crosses π
+    dt = rng.uniform(0.01, 0.05, steps)
+    eps = rng.standard_normal((m, steps, noise.n_draws))
+    path = move_segment(x0, u, dt, noise, eps)
+    assert path.shape == (m, steps, 3)
+    x = x0.copy()
+    for j in range(steps):
+        x = loop_move(x, u[j], dt[j], noise, eps[:, j])
+        np.testing.assert_allclose(path[:, j, :2], x[:, :2], atol=1e-6)  # cos/sin in single precision
+        np.testing.assert_allclose(wrap_angle(path[:, j, 2] - x[:, 2]), 0.0, atol=1e-9)
+    assert np.all((path[..., 2] > -np.pi) & (path[..., 2] <= np.pi))
+    assert np.any(path[:, -1, 2] < 0)  # some headings did cross ±π
+
+
+def test_move_segment_refuses_negative_dt():
+    """A step of negative duration is refused, as by propagate (the documented domain dt >= 0)."""
+    with pytest.raises(ValueError, match="dt >= 0"):
+        move_segment(np.zeros((2, 3)), np.zeros((3, 2)), np.array([0.1, -0.1, 0.1]), MotionNoise(),
+                     np.zeros((2, 3, 2)))
+
+
+def test_state_noise_kick_across_pi_is_wrapped():
+    """State mode: a heading kick from π − 0.01 by +0.05 rad lands at −π + 0.04 (closed form)."""
+    noise = MotionNoise("state", sigma_xy=0.0, sigma_theta=1.0)
+    out = move([[1.0, 2.0, np.pi - 0.01]], [0.0, 0.0], 0.25, noise, [[0.0, 0.0, 0.1]])  # σ√Δt ε = 0.05
+    np.testing.assert_allclose(out, [[1.0, 2.0, -np.pi + 0.04]], atol=1e-12)
+
+
+def test_from_per_step_std_with_no_std_at_all_raises():
+    """Neither control nor state standard deviations given: refused, not silently 'no noise'."""
+    with pytest.raises(ValueError, match="not neither"):
+        MotionNoise.from_per_step_std(1.0)

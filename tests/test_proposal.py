@@ -132,6 +132,49 @@ def test_a_sighting_never_widens_the_pose_gaussian(seed):
     assert np.isfinite(loglik[0]) and loglik[0] == pytest.approx(log_w, abs=1e-8)
 
 
+def test_kalman_form_equals_the_information_form_across_the_bearing_cut():
+    """A landmark behind the robot, sighting and prediction on either side of ±π: improved_pose = improved_pose_one
+    (which takes the innovation from measurement.innovation); the bearing residual is 0.02 rad, not 2π − 0.02."""
+    x_bar = np.array([0.2, -0.1, 0.0])
+    P = np.diag([0.02, 0.02, 0.03]) ** 2
+    mu = np.array([-2.8, -0.08])  # bearing just under π
+    Sigma = np.diag([0.03, 0.02]) ** 2
+    z = range_bearing(x_bar, mu) + [0.01, 0.02]
+    z[1] = wrap_angle(z[1])  # a sensor reports bearings in (−π, π]
+    assert np.sign(z[1]) != np.sign(range_bearing(x_bar, mu)[1])  # the case straddles the cut
+    x, x_bar_new, _, loglik, d2 = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None], z, R,
+                                                np.zeros((1, 2)))
+    mu_x, _, log_w = improved_pose_one(x_bar, P, mu, Sigma, z, R)
+    np.testing.assert_allclose(x_bar_new[0], mu_x, atol=1e-10)
+    np.testing.assert_allclose(x[0], [mu_x[0], mu_x[1], wrap_angle(mu_x[2])], atol=1e-10)
+    assert loglik[0] == pytest.approx(log_w, abs=1e-9)
+    assert d2[0] < 10.0
+
+
+def test_the_perturbation_has_the_innovation_covariance_when_it_is_correlated():
+    """x̂ = x̄, ε = e₁, e₂: the moves D = K L satisfy D Dᵀ = K Q Kᵀ with K = Σ_x Gᵀ Q⁻¹ and Q = H Σ Hᵀ + R
+    built from measurement's Jacobians (range and bearing correlated 0.9 through Σ, so L is not diagonal)."""
+    from fastslam_edu.measurement import jacobian_landmark, jacobian_pose
+
+    x_bar = np.array([0.1, 0.2, 0.3])
+    P = np.diag([0.03, 0.02, 0.04]) ** 2
+    mu = np.array([3.0, 2.0])
+    H, G = jacobian_landmark(x_bar, mu), jacobian_pose(x_bar, mu)
+    C = np.array([[0.05**2, 0.9 * 0.05 * 0.02], [0.9 * 0.05 * 0.02, 0.02**2]])  # in (range, bearing)
+    Sigma = np.linalg.solve(H, np.linalg.solve(H, C).T)  # H⁻¹ C H⁻ᵀ
+    Rs = np.diag([0.01, 0.005]) ** 2
+    z = range_bearing(x_bar, mu) + [0.02, -0.01]
+    stack = lambda a: np.broadcast_to(a, (3,) + a.shape)  # noqa: E731
+    eps = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    x, *_ = improved_pose(stack(x_bar), stack(x_bar), stack(P), stack(mu), stack(Sigma), z, Rs, eps)
+    D = (x[1:] - x[0]).T  # (3, 2)
+    Q = H @ Sigma @ H.T + Rs
+    assert abs(Q[0, 1]) / np.sqrt(Q[0, 0] * Q[1, 1]) > 0.5  # the case is correlated
+    _, Sigma_x, _ = improved_pose_one(x_bar, P, mu, Sigma, z, Rs)
+    K = Sigma_x @ G.T @ np.linalg.inv(Q)
+    np.testing.assert_allclose(D @ D.T, K @ Q @ K.T, rtol=1e-8, atol=1e-14)
+
+
 def test_the_perturbed_observation_draws_the_proposal():
     """x̂ ~ N(x̄, P) moved by K(z + Lε − ẑ(x̂)): 40,000 draws have mean μ_x and covariance Σ_x."""
     rng = np.random.default_rng(4)

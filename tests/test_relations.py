@@ -51,6 +51,16 @@ def test_match_times_nearest_with_tolerance_and_ties():
     assert idx.tolist() == [2, 1, 0] and ok.all()
     with pytest.raises(ValueError, match="NaN"):
         match_times([np.nan], ts)
+    with pytest.raises(ValueError, match="tolerance"):
+        match_times([0.5], ts, tolerance=-1e-3)
+    with pytest.raises(ValueError, match="non-empty"):
+        match_times([0.5], [])
+
+
+def test_match_times_repeated_stamp_reached_from_above_gives_the_first_copy():
+    """Reference: by hand, 2.1 is nearest to the stamp 2.0 held by scans 2 and 3; the first in the file wins."""
+    idx, ok = match_times([2.1, 2.0, 1.9], [3.0, 0.0, 2.0, 2.0, 1.0], tolerance=0.2)
+    assert idx.tolist() == [2, 2, 2] and ok.all()
 
 
 def test_exact_estimate_has_zero_error_and_all_relations_are_used():
@@ -94,6 +104,8 @@ def test_error_of_one_moved_pose_against_matrices_and_invariance_to_the_frame():
     np.testing.assert_allclose(out["trans_errors"], expected_t, atol=1e-12)
     np.testing.assert_allclose(out["rot_errors_deg"], expected_r, atol=1e-9)
     assert out["trans_mean"] == pytest.approx(np.mean(expected_t)) and out["trans_std"] == pytest.approx(np.std(expected_t))
+    assert out["rot_mean_deg"] == pytest.approx(np.mean(expected_r))
+    assert out["rot_std_deg"] == pytest.approx(np.std(expected_r)) and np.std(expected_r) > 0.1
     assert sum(e > 1e-9 for e in expected_t) >= 2
     # relations are relative: moving the whole estimate changes nothing
     G = T([5.0, -3.0, 1.2])
@@ -129,6 +141,43 @@ def test_reference_errors_after_alignment():
     assert 0.05 < out["rmse"] < 0.15  # ≈ 0.1·√2 minus what the 3-parameter fit absorbs
     with pytest.raises(ValueError, match="time base"):
         reference_errors(t + 1000.0, noisy, t, ref)
+
+
+def test_reference_errors_statistics_against_a_closed_form_alignment():
+    """Reference: the 2-D least-squares rigid fit in closed form (angle from the centred cross/dot sums)."""
+    rng = np.random.default_rng(6)
+    ref = random_path(rng, n=25)
+    est = np.array([pose_of(T([1.0, -2.0, 0.4]) @ T(p)) for p in ref])
+    est[:, :2] += rng.normal(0, 0.2, (25, 2))
+    t = np.arange(25, dtype=float)
+    out = reference_errors(t, est, t, ref)
+    a, b = est[:, :2] - est[:, :2].mean(0), ref[:, :2] - ref[:, :2].mean(0)
+    ang = math.atan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    c, s = math.cos(ang), math.sin(ang)
+    e = np.hypot(c * a[:, 0] - s * a[:, 1] - b[:, 0], s * a[:, 0] + c * a[:, 1] - b[:, 1])
+    np.testing.assert_allclose(out["errors"], e, atol=1e-12)
+    assert out["rmse"] == pytest.approx(math.sqrt(np.mean(e**2)))
+    assert out["mean"] == pytest.approx(np.mean(e)) and out["max"] == pytest.approx(np.max(e))
+    assert out["rotation_deg"] == pytest.approx(math.degrees(ang))
+
+
+def test_reference_errors_pairs_the_same_log_by_index_even_with_a_repeated_stamp():
+    """Reference: a rigidly moved copy has zero error once each scan is paired with its own reference pose."""
+    ref = random_path(np.random.default_rng(7), n=12)
+    t = np.arange(12, dtype=float)
+    t[5] = t[4]  # a stamp printed twice
+    moved = np.array([pose_of(T([0.5, 0.5, -1.0]) @ T(p)) for p in ref])
+    out = reference_errors(t, moved, t, ref)
+    assert out["n_matched"] == 12 and out["max"] < 1e-9
+
+
+def test_reference_errors_needs_two_matched_times():
+    """Reference: a rigid fit needs at least two points; one matching time stamp is refused."""
+    ref = random_path(np.random.default_rng(8), n=6)
+    t_ref = np.arange(6, dtype=float)
+    t = np.array([2.0, 100.0, 200.0])
+    with pytest.raises(ValueError, match="only 1 of 3"):
+        reference_errors(t, ref[:3], t_ref, ref)
 
 
 def test_bad_input_is_rejected():

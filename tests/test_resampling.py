@@ -340,3 +340,17 @@ def test_offspring_counts():
         rs.offspring_counts([0, 3], 3)
     with pytest.raises(ValueError, match="integer"):
         rs.offspring_counts([0.0, 1.0], 3)
+
+
+def test_sum_just_beyond_the_tolerance_is_refused_and_within_it_renormalised():
+    """|Σw − 1| = 1e-7 > 1e-8 raises (the documented tolerance); 5e-10 is accepted and w / Σw returned."""
+    with pytest.raises(ValueError, match="normalised"):
+        rs.systematic(np.array([0.5, 0.5 + 1e-7]), np.random.default_rng(0))
+    w = np.array([0.25, 0.75 + 5e-10])
+    np.testing.assert_allclose(rs.validate_weights(w), w / (1.0 + 5e-10), rtol=1e-15)
+    assert abs(rs.validate_weights(w).sum() - 1.0) <= 2.3e-16
+
+
+def test_negative_positions_never_select_a_leading_zero_weight_particle():
+    """Positions below 0 (round-off) are clipped to 0: particle 0 of weight 0 owns an empty interval."""
+    np.testing.assert_array_equal(rs.inverse_cdf([-0.1, -1e-17, 0.0], [0.0, 0.5, 0.5]), [1, 1, 1])

@@ -98,3 +98,43 @@ def test_bad_input_is_refused_with_a_message():
         se2.transform_points([0, 0, 0], [1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="compose_increments"):
         se2.compose_increments([0, 0, 0], [0.1, 0, 0])
+
+
+def test_every_result_heading_lies_in_the_half_open_interval():
+    """Headings of compose/inverse/relative/compose_increments in (−π, π], against atan2 of matrix products."""
+    rng = np.random.default_rng(3)
+    a, b = random_poses(rng, 200), random_poses(rng, 200)
+    for out in (se2.compose(a, b), se2.inverse(a), se2.relative(a, b)):
+        assert np.all((out[:, 2] > -math.pi) & (out[:, 2] <= math.pi))
+    # θ = π: its inverse has heading −π, which the interval writes as π
+    assert se2.inverse([1.0, 2.0, math.pi])[2] == pytest.approx(math.pi, abs=1e-15)
+    # a robot turning 0.5 rad per step for 60 steps: 30 rad of unwrapped heading
+    u = np.tile([0.2, 0.0, 0.5], (60, 1))
+    path = se2.compose_increments([0.0, 0.0, 0.0], u)
+    assert np.all((path[:, 2] > -math.pi) & (path[:, 2] <= math.pi))
+    T = np.eye(3)
+    for k in range(60):
+        T = T @ matrix(u[k])
+        assert_pose_close(path[k + 1], pose_of(T), atol=1e-10)
+
+
+def test_wrap_angle_against_math_remainder():
+    """wrap_angle equals math.remainder(a, 2π) (an independent wrap), also many turns away; ±π map to π."""
+    from fastslam_edu.angles import wrap_angle
+
+    a = np.random.default_rng(4).uniform(-100.0, 100.0, 500)
+    ref = np.array([math.remainder(v, 2 * math.pi) for v in a])
+    np.testing.assert_allclose(wrap_angle(a), ref, atol=1e-12)
+    assert wrap_angle(math.pi) == math.pi and wrap_angle(-math.pi) == math.pi
+    out = wrap_angle(7.0)  # a scalar in, a Python float out
+    assert type(out) is float and out == pytest.approx(7.0 - 2 * math.pi, abs=1e-15)
+
+
+def test_path_functions_refuse_wrong_ranks():
+    """path_increments wants (N, 3) and compose_increments x0 (3,): other ranks raise a ValueError naming them."""
+    with pytest.raises(ValueError, match=r"path_increments: poses must have shape \(N, 3\)"):
+        se2.path_increments(np.zeros((2, 4, 3)))
+    with pytest.raises(ValueError, match=r"path_increments: poses must have shape \(N, 3\)"):
+        se2.path_increments([1.0, 2.0, 0.3])
+    with pytest.raises(ValueError, match=r"compose_increments: x0 must have shape \(3,\)"):
+        se2.compose_increments(np.zeros((2, 3)), np.zeros((4, 3)))

@@ -175,6 +175,8 @@ def test_filter_returns_counts():
         filter_returns([1.0], [np.nan])
     with pytest.raises(ValueError, match="min_range"):
         filter_returns([1.0], [1.0], min_range=5.0, max_range=1.0)
+    with pytest.raises(ValueError, match="min_range"):  # an empty interval is refused too
+        filter_returns([1.0], [1.0], min_range=1.0, max_range=1.0)
 
 
 def test_joints_at_nearest_timestamp_against_brute_force():

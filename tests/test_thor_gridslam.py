@@ -105,6 +105,29 @@ def test_level_head_projection_is_the_scan_turned_by_the_neck():
     assert log.counts["floor"] == 0 and log.counts["kept"] == int((ranges > 0).sum())
 
 
+def test_pitched_head_projection_band_and_counts_by_hand():
+    """Reference: closed form R_y(φ)(r cos α, r sin α, 0) + 1.41 ẑ per beam, sorted into floor / band / above."""
+    phi = math.radians(30.0)
+    alpha = np.array([0.0, 0.5, 3.0, 3.0])
+    r = np.array([2.0, 5.0, 2.0, 0.5])
+    lidar = ThorLidar(t=np.array([T0]), ranges=r[None], angles=alpha, pose=np.zeros((1, 3)), delta_pose=None,
+                      rpy=None, res=None, variant=1, source="synthetic")
+    log = planar_laser_log(lidar, np.array([T0]), np.zeros(1), np.array([phi]))
+    x, y, z = r * np.cos(alpha) * math.cos(phi), r * np.sin(alpha), 1.41 - r * np.cos(alpha) * math.sin(phi)
+    # z ≈ 0.41 (kept), −0.78 (floor), 2.40 (above the 2 m band), 1.66 (kept)
+    assert z[1] < 0.1 and z[2] > 2.0 and 0.1 < z[0] < 2.0 and 0.1 < z[3] < 2.0
+    assert log.counts == {"total": 4, "out_of_range": 0, "floor": 1, "outside_band": 1, "kept": 2, "planar_beams": 2}
+    assert log.ranges.shape == (1, 720)  # 360° / 0.5°
+    np.testing.assert_allclose(log.angles, -math.pi + PLANAR_BEARING_STEP * np.arange(720), atol=1e-12)
+    expect = np.full(720, np.nan)
+    for b in (0, 3):
+        expect[int(round((math.atan2(y[b], x[b]) + math.pi) / PLANAR_BEARING_STEP)) % 720] = math.hypot(x[b], y[b])
+    np.testing.assert_allclose(log.ranges[0], expect, rtol=1e-12, equal_nan=True)
+    for bad in ({"band": (2.0, 0.1)}, {"bearing_step": 0.0}, {"bearing_step": -0.01}, {"bearing_step": 4.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            planar_laser_log(lidar, np.array([T0]), np.zeros(1), np.array([phi]), **bad)
+
+
 def test_projection_drops_floor_and_needs_joints_in_time(sequence, files):
     lidar = read_thor_lidar(files / "lidar_v1.mat")
     tj, neck, head = read_thor_joints(files / "joints.mat")

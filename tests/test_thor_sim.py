@@ -84,6 +84,11 @@ def test_cast_rays_single_wall_closed_forms():
     assert np.isinf(r2).all() and (k2 == NO_HIT).all()
 
 
+def test_default_floor_plan_extent_is_the_building_shifted_to_the_start():
+    """Reference: the 20 m × 12 m building with the start (2, 2.5) moved to the origin."""
+    assert default_floor_plan().extent == pytest.approx((-2.0, 18.0, -2.5, 9.5))
+
+
 def test_cast_rays_matches_a_per_beam_linear_solve():
     rng = np.random.default_rng(5)
     plan = default_floor_plan()
@@ -233,6 +238,48 @@ def test_odometry_drift_closed_forms():
     assert abs(z.std() - 1) < 0.05 and abs(z.mean()) < 0.1
 
 
+def test_walking_path_turns_the_short_way_across_pi():
+    """Reference: closed form; headings 174.3° then −168.7° differ by a 17° left turn, not a 343° right one."""
+    w = [(0.0, 0.0), (-1.0, 0.1), (-2.0, -0.1)]
+    t = np.arange(0, 20, 0.01)
+    path = walking_path(w, t, turn_rate=0.5)
+    turn = math.atan2(-0.2, -1.0) - math.atan2(0.1, -1.0) + 2 * math.pi  # +0.295 rad
+    steps = np.angle(np.exp(1j * np.diff(path[:, 2])))
+    assert steps.min() > -1e-12 and steps.sum() == pytest.approx(turn, abs=1e-9)
+    still = np.all(np.diff(path[:, :2], axis=0) == 0, axis=1)  # turning in place
+    assert still.sum() * 0.01 == pytest.approx(turn / 0.5, abs=0.02)
+
+
+def test_odometry_yaw_noise_variance_grows_with_the_turn():
+    """Reference: Δθ̂ − Δθ ~ N(0, σ_r² |Δθ|) for a body turning in place (no translation, no drift)."""
+    dth = 0.01
+    path = np.column_stack([np.zeros(3001), np.zeros(3001), np.angle(np.exp(1j * dth * np.arange(3001)))])
+    cfg = ThorSimConfig(odom_scale=0, odom_yaw_drift=0, odom_trans_noise=0, odom_rot_noise=0.05)
+    u = path_increments(drifting_odometry(path, np.random.default_rng(2), cfg))
+    z = (u[:, 2] - dth) / (0.05 * math.sqrt(dth))
+    assert abs(z.std() - 1) < 0.05 and abs(z.mean()) < 0.1
+    np.testing.assert_allclose(u[:, :2], 0.0, atol=1e-12)
+
+
+def test_delta_pose_yaw_is_wrapped_when_the_odometry_crosses_pi(joints):
+    """Reference: walking west, each step's yaw change is small; wrap(θ_k − θ_{k−1}) by complex exponentials."""
+    cfg = ThorSimConfig(scan_rate=1.0, duration=40.0, n_beams=5, odom_yaw_drift=0.05)
+    s = simulate_thor(*joints, np.random.default_rng(0), cfg, waypoints=[(0, 0), (4, 0), (4, 2), (0, 2)])
+    assert np.abs(np.diff(s.odom_pose[:, 2])).max() > math.pi  # the odometry yaw does cross ±π
+    np.testing.assert_allclose(s.delta_pose[1:, 2], np.angle(np.exp(1j * np.diff(s.odom_pose[:, 2]))), atol=1e-12)
+    assert np.abs(s.delta_pose[1:, 2]).max() < 1.0  # turn_rate / scan_rate = 0.5 rad per scan, plus noise
+
+
+def test_max_range_and_no_return_value_are_honoured(joints):
+    """Reference: the configuration itself: returns never exceed max_range, beams without one hold no_return."""
+    cfg = ThorSimConfig(scan_rate=1.0, duration=30.0, max_range=3.0, no_return=-1.0)
+    s = simulate_thor(*joints, np.random.default_rng(1), cfg)
+    hit = s.kind != NO_HIT
+    assert hit.sum() > 1000 and (~hit).sum() > 1000
+    assert s.ranges[hit].max() <= 3.0
+    assert (s.ranges[~hit] == -1.0).all() and np.isinf(s.true_range[~hit]).all()
+
+
 def test_default_odometry_drifts(seq):
     err = np.hypot(*(seq.odom_pose[:, :2] - seq.true_pose[:, :2]).T)
     assert err[0] == 0 and err[-1] > 0.3  # ~1 m after the tour with the defaults
@@ -290,6 +337,14 @@ def test_bad_inputs(joints, tmp_path, monkeypatch):
         FloorPlan(np.zeros((3, 2)))
     with pytest.raises(ValueError, match="zero length"):
         FloorPlan(np.array([[(1.0, 1.0), (1.0, 1.0)]]))
+    with pytest.raises(ValueError, match="height"):
+        FloorPlan(np.array([[(0.0, 0.0), (1.0, 0.0)]]), height=0.0)
+    with pytest.raises(ValueError, match="n_beams"):
+        ThorSimConfig(n_beams=0)
+    repeated = t.copy()
+    repeated[5] = repeated[4]  # two joint samples at the same time
+    with pytest.raises(ValueError, match="must increase"):
+        simulate_thor(repeated, neck, head, rng)
     with pytest.raises(ValueError, match="variant"):
         seq = simulate_thor(t, neck, head, rng, ThorSimConfig(scan_rate=1.0, duration=30.0))
         write_sequence(seq, tmp_path / "x.mat", variant=3)

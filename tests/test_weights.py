@@ -193,3 +193,17 @@ def test_ess_is_scale_invariant():
 def test_ess_bad_input(w, pattern):
     with pytest.raises(ValueError, match=pattern):
         effective_sample_size(w)
+
+
+@pytest.mark.parametrize("bad, pattern", [(np.nan, "1 NaN"), (np.inf, r"\+inf")])
+def test_float_arrays_with_nan_or_plus_inf_raise_too(bad, pattern):
+    """A float ndarray (the filter's fast path) is refused like a list: w = NaN is not a weight."""
+    logw = np.array([0.0, -1.0, bad, -2.0])
+    with pytest.raises(ValueError, match=pattern):
+        weights_from_log(logw)
+
+
+def test_ess_refuses_one_all_zero_row_in_a_batch():
+    """N_eff = (Σw)²/Σw² is 0/0 for a zero row: refused even when the other rows are fine."""
+    with pytest.raises(ValueError, match="all weights are zero"):
+        effective_sample_size(np.array([[0.5, 0.5], [0.0, 0.0]]))
