@@ -149,3 +149,33 @@ def test_a_robot_without_groundtruth_gets_the_table_checked_by_the_others(tmp_pa
     np.testing.assert_array_equal(data1.landmarks.to_numpy(), data2.landmarks.to_numpy())
     _, _, kept = load_mrclam(folder, 2, audit=False)
     assert kept == []
+
+
+def _audit_table(rows):
+    """A hand-made audit table: rows (subject, n, nearest, suspect)."""
+    frame = pd.DataFrame(rows, columns=["subject", "n", "nearest", "suspect"]).set_index("subject")
+    return frame
+
+
+def test_swap_rule_on_hand_made_audit_tables():
+    """Reference: the documented rule — a pair is exchanged only if both are suspect, each is nearest the other,
+    both are in the table and both have at least min_sightings sightings; a suspect landmark nearest its own
+    position, or nearest a table entry that was never measured, is no pair."""
+    assert landmark_swaps(_audit_table([(6, 20, 7, True), (7, 20, 6, True)])) == [(6, 7)]  # exactly 20 each
+    assert landmark_swaps(_audit_table([(6, 50, 7, False), (7, 50, 6, True)])) == []  # 6 not suspect
+    assert landmark_swaps(_audit_table([(6, 50, 7, True), (7, 50, 6, False)])) == []  # 7 not suspect
+    assert landmark_swaps(_audit_table([(6, 50, 7, True), (7, 19, 6, True)])) == []  # 7 seen too rarely
+    assert landmark_swaps(_audit_table([(6, 19, 7, True), (7, 50, 6, True)])) == []  # 6 seen too rarely
+    assert landmark_swaps(_audit_table([(6, 50, 6, True), (7, 50, 7, False)])) == []  # off, but nearest itself
+    assert landmark_swaps(_audit_table([(6, 50, 9, True), (7, 50, 7, False)])) == []  # 9 never measured
+
+
+def test_a_robot_without_sightings_is_skipped(data):
+    """Reference: the documented contract — only robots with groundtruth *and* sightings are used; with none left
+    the audit is an empty table indexed by subject."""
+    log = data.robots[1]
+    silent = dataclasses.replace(data, robots={1: dataclasses.replace(log, measurements=log.measurements.iloc[:0])})
+    audit = audit_landmarks(silent)
+    assert audit.empty and list(audit.columns) == COLUMNS and audit.index.name == "subject"
+    out, notes = apply_landmark_audit(silent)
+    assert notes == [] and out is silent

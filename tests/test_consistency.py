@@ -184,3 +184,43 @@ def test_spread_recorder_reads_tree_backed_particles_too():
     run_fastslam(stream, params, 3, monitor=tree, particle_class=TreeParticleSet)
     np.testing.assert_allclose(np.array(tree.cov), np.array(dense.cov), atol=1e-12)
     np.testing.assert_allclose(tree.maps[-1][0], dense.maps[-1][0], atol=1e-12)
+
+
+def test_nees_rejects_scalars_and_singular_covariances():
+    """Reference: the documented contract — e must be (..., d); a covariance with a zero eigenvalue is not
+    positive definite (ε would be infinite), and the message names it."""
+    with pytest.raises(ValueError, match="do not match"):
+        nees(1.0, 1.0)
+    with pytest.raises(ValueError, match="covariance 0 is not positive definite"):
+        nees(np.zeros((1, 2)), np.diag([1.0, 0.0])[None])
+
+
+def test_nees_interval_rejects_zero_runs_and_degenerate_confidence():
+    """Reference: the documented domain (n_runs >= 1, confidence strictly inside (0, 1): at 1 the interval
+    would be [0, ∞))."""
+    for bad in [(3, 0), (3, 10, 1.0), (3, 10, 0.0)]:
+        with pytest.raises(ValueError):
+            nees_interval(*bad)
+
+
+def test_pose_covariance_rejects_negative_weights_summing_to_one():
+    """Reference: the documented contract — weights must be non-negative, not only sum to 1."""
+    with pytest.raises(ValueError, match="non-negative"):
+        pose_covariance(np.zeros((2, 3)), np.array([1.5, -0.5]))
+
+
+def test_pose_error_rejects_poses_without_heading():
+    """Reference: the documented contract — poses are (..., 3)."""
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+        pose_error([0.0, 0.0], [1.0, 1.0])
+
+
+def test_spread_recorder_takes_a_step_exactly_at_a_requested_time():
+    """Reference: the documented rule "the first measurement step at or after it", checked at times that are
+    exactly measurement steps' times (read from the filter's own list of measurement steps)."""
+    data, log, stream = simulate(2, duration=5.0)
+    params = simulator_params(n_particles=10)
+    steps_t = run_fastslam(stream, params, 1).ess_t
+    rec = SpreadRecorder(times=[steps_t[3], steps_t[7]])
+    run_fastslam(stream, params, 1, monitor=rec)
+    assert rec.t == [float(steps_t[3]), float(steps_t[7])]

@@ -244,3 +244,57 @@ def test_one_hz_dead_reckoning_on_constant_commands():
     end = dead_reckon(s, s.x0)
     radius, angle = 0.2 / 0.1, 0.1 * 20
     np.testing.assert_allclose(end, [radius * np.sin(angle), radius * (1 - np.cos(angle)), angle], atol=1e-12)
+
+
+# --------------------------------------------------------------------------
+# edges of the contracts
+# --------------------------------------------------------------------------
+
+
+def test_window_bounds_are_inclusive_and_the_1hz_window_cuts_the_odometry_too():
+    """Reference: the documented ``t_start <= t <= t_end``, checked at exactly an event's time (full rate) and on
+    whole seconds (1 Hz: odometry and measurements outside [11, 12] play no part)."""
+    s = event_stream(hand_log(), LANDMARKS, t_start=1.5, t_end=4.0)
+    np.testing.assert_array_equal(s.t, [1.5, 2.0, 4.0])
+    odometry = [(9.6, 0.1, 0.3), (10.8, 0.2, 0.0), (11.9, 0.4, 0.2), (13.0, 0.05, 0.1), (14.2, 0.3, 0.0)]
+    log = make_log(odometry, [(11.2, 6, 1.0, 0.0), (14.0, 7, 2.0, 0.0)])
+    s = event_stream(log, LANDMARKS, rate="1hz", t_start=11.0, t_end=12.0)
+    np.testing.assert_array_equal(s.t, [11.0, 12.0])
+    np.testing.assert_allclose(s.u, [(0.2, 0.0), (0.4, 0.2)])
+    np.testing.assert_array_equal(s.offsets, [0, 1, 1])
+
+
+def test_one_hz_x0_is_the_groundtruth_at_the_first_second():
+    """Closed form: groundtruth x = t, y = −t, θ = 0.1 t interpolated at the first whole second (10)."""
+    gt = [(t, t, -t, 0.1 * t) for t in (9.0, 12.0)]
+    log = make_log([(9.8, 0.1, 0.0), (11.7, 0.1, 0.0)], [(10.6, 6, 1.0, 0.0)], gt)
+    s = event_stream(log, LANDMARKS, rate="1hz")
+    np.testing.assert_array_equal(s.t, [10.0, 11.0, 12.0])
+    np.testing.assert_allclose(s.x0, [10.0, -10.0, 1.0])
+
+
+def test_angle_mean_is_wrapped_back_into_range():
+    """Hand computation: 3.1 and −3.0 rad are 0.183 rad apart across ±π; their mean 3.1 + 0.0916 rad lies beyond π
+    and must come back as 3.1916 − 2π ≈ −3.0916 rad."""
+    df = pd.DataFrame({"time": [4.9, 5.1], "theta": [3.1, -3.0]})
+    out = clean_1hz_table(df, angle_columns=("theta",))
+    expected = 3.1 + (2 * np.pi - 6.1) / 2 - 2 * np.pi
+    np.testing.assert_allclose(out["theta"], [expected], atol=1e-12)
+
+
+def test_more_bad_arguments_are_reported():
+    """Reference: the documented contracts — landmark_subjects non-empty whole numbers, x0 of shape (3,),
+    finite query times, time never going backwards (even by half a second)."""
+    with pytest.raises(ValueError, match="whole numbers"):
+        event_stream(hand_log(), [6.5, 7.0, 8.0])
+    with pytest.raises(ValueError, match="non-empty"):
+        event_stream(hand_log(), [])
+    with pytest.raises(ValueError, match="x0 must be"):
+        event_stream(hand_log(), LANDMARKS, x0=[0.0, 1.0])
+    gt = [(0.0, 0.0, 0.0, 0.0), (2.0, 1.0, 0.0, 0.0)]
+    with pytest.raises(ValueError, match="must be finite"):
+        groundtruth_at(make_log([(0.0, 0.0, 0.0)], [], gt), [1.0, np.nan])
+    log = hand_log()
+    log.odometry.loc[3, "time"] = 1.5  # after 2.0: half a second back
+    with pytest.raises(ValueError, match=r"robot 3 odometry row 3: time goes backwards"):
+        event_stream(log, LANDMARKS)

@@ -80,3 +80,61 @@ def test_the_window_grows_until_two_landmarks_are_far_enough_apart():
     pos = data.landmarks.loc[list(ip.subjects), ["x", "y"]].to_numpy()
     assert np.linalg.norm(pos[:, None] - pos[None], axis=2).max() >= 1.0
     assert "initial pose from" in ip.describe()
+
+
+def _noise_free(seed):
+    return simulate_dataset(seed, duration=30.0, range_std=1e-9, bearing_std=1e-9,
+                            odometry_noise=MotionNoise(sigma_v=0.0, sigma_omega=0.0))
+
+
+def test_each_landmark_is_placed_by_the_median_of_its_sightings():
+    """Known truth: the first sighting of every landmark read 1 m too far (each has >= 6 in the window) does not
+    move the start: the median of a landmark's sightings ignores it."""
+    data = _noise_free(0)
+    log = data.robots[1]
+    m = log.measurements.copy()
+    first = m.groupby("subject").head(1).index
+    m.loc[first, "range"] += 1.0
+    ip = initial_pose_from_landmarks(dataclasses.replace(log, measurements=m), data.landmark_positions,
+                                     data.landmark_subjects, max_window_s=10.0)
+    dist, ang = _start_error(data, log, ip)
+    assert dist < 2e-3 and ang < 1e-3, (dist, ang)
+
+
+def test_reports_what_it_used():
+    """Reference: counts made here from the log — t0 is the earlier of the first odometry and first measurement
+    times; ``sightings`` is the number of sightings of surveyed landmarks in [t0, t0 + window_s]; the window is
+    the first of window_s·2^k for which two landmarks ≥ 1 m apart have been seen; min_landmarks is honoured."""
+    data = _noise_free(3)
+    log = data.robots[1]
+    meas = log.measurements
+    late = dataclasses.replace(log, odometry=log.odometry[log.odometry["time"] > meas["time"].iloc[0] + 0.5])
+    ip = initial_pose_from_landmarks(late, data.landmark_positions, data.landmark_subjects, window_s=0.25)
+    assert ip.t0 == float(meas["time"].iloc[0])
+    pos = data.landmarks[["x", "y"]]
+    window = 0.25
+    while True:
+        seen = meas[meas["time"] <= ip.t0 + window]
+        p = pos.loc[sorted(set(seen["subject"]))].to_numpy()
+        if len(p) >= 2 and np.linalg.norm(p[:, None] - p[None], axis=2).max() >= 1.0:
+            break
+        window *= 2
+    assert ip.window_s == window and ip.sightings == len(seen) and ip.subjects == tuple(sorted(set(seen["subject"])))
+    assert window == 2.0  # 0.25 → 0.5 → 1 → 2: the search had to grow the window three times
+    five = initial_pose_from_landmarks(log, data.landmark_positions, data.landmark_subjects, window_s=0.25,
+                                       min_landmarks=5)
+    assert len(five.subjects) >= 5
+
+
+def test_landmarks_too_close_together_or_not_finite_are_refused():
+    """Reference: the documented contract — two landmarks at least min_separation_m apart within max_window_s
+    (the window capped at max_window_s, named in the message), and finite surveyed positions."""
+    data = simulate_dataset(0, duration=30.0)
+    log = data.robots[1]
+    with pytest.raises(ValueError, match=r"in the first 5 s .* at least 100.0 m apart"):
+        initial_pose_from_landmarks(log, data.landmark_positions, data.landmark_subjects, window_s=0.5,
+                                    max_window_s=5.0, min_separation_m=100.0)
+    bad = data.landmark_positions.copy()
+    bad[2, 0] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        initial_pose_from_landmarks(log, bad, data.landmark_subjects)

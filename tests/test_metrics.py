@@ -147,6 +147,24 @@ def test_align_bad_input(args, pattern):
         align_se2(*args)
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_align_rejects_non_finite_weights(bad):
+    """Reference: the documented contract (weights must be finite); NaN/inf would silently give a NaN motion."""
+    s = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]
+    with pytest.raises(ValueError, match="finite"):
+        align_se2(s, s, [1.0, bad, 1.0])
+
+
+def test_align_small_spread_far_from_origin_still_recovers_rotation():
+    """Reference: a known rigid motion of a 1 cm cluster 1 km away (rotation well determined, not degenerate)."""
+    rng = np.random.default_rng(11)
+    s = 1000.0 + rng.uniform(-0.01, 0.01, size=(10, 2))
+    angle, t_true = 0.5, np.array([2.0, -3.0])
+    y = s @ rot(angle).T + t_true
+    _, _, a = align_se2(s, y)
+    assert a == pytest.approx(angle, abs=1e-6)
+
+
 # --------------------------------------------------------------------------- landmarks
 
 

@@ -19,6 +19,7 @@ from fastslam_edu.datasets.mrclam import (
     read_measurements,
     read_odometry,
     read_robot,
+    robots_in,
     write_dataset,
 )
 
@@ -272,3 +273,59 @@ def test_bad_measurement_and_barcode_files(tmp_path):
     p.write_text("Time,X,Y,Orientation\n\n1,2,3,4\n2,2,3\n")
     with pytest.raises(ValueError, match=r"bad.csv, line 4: expected 4 columns"):
         read_groundtruth_csv(p)
+
+
+def test_repeated_ids_name_the_first_two_lines(tmp_path):
+    """Reference: hand-written files — a duplicate is reported at its second line against its first (even when it
+    occurs three times), for barcodes, subjects in Barcodes.dat and subjects in Landmark_Groundtruth.dat."""
+    p = write(tmp_path / "Barcodes.dat", ["1\t5", "2\t5", "3\t5"])
+    with pytest.raises(ValueError, match=r"line 6: barcode 5 repeats line 5"):
+        read_barcodes(p)
+    p = write(tmp_path / "Barcodes.dat", ["1\t5", "2\t14", "1\t72"])
+    with pytest.raises(ValueError, match=r"line 7: subject 1 repeats line 5"):
+        read_barcodes(p)
+    p = write(tmp_path / "Landmark_Groundtruth.dat", ["6\t1.0\t2.0\t0.1\t0.1", "6\t3.0\t4.0\t0.1\t0.1"])
+    with pytest.raises(ValueError, match=r"line 6: subject 6 repeats line 5"):
+        read_landmark_groundtruth(p)
+
+
+def test_csv_header_may_have_spaces(tmp_path):
+    """Reference: the documented header check ignores spaces and case ('Time, X, Y, Orientation')."""
+    p = tmp_path / "gt.csv"
+    p.write_text("Time, X, Y, Orientation\n1,2,3,0.5\n")
+    assert read_groundtruth_csv(p).to_numpy().tolist() == [[1.0, 2.0, 3.0, 0.5]]
+
+
+def test_a_subject_listed_as_landmark_is_not_also_counted_as_a_robot_sighting():
+    """Reference: hand count — if subject 2 (a robot) is passed as a landmark, its sighting is kept, and not also
+    counted among the dropped robot sightings."""
+    raw = pd.DataFrame({"time": [1.0, 2.0, 3.0], "barcode": [14, 5, 27], "range": 1.0, "bearing": 0.0})
+    m, dropped = landmark_sightings(raw, BARCODES, [2, 6, 7, 8])
+    assert m["subject"].tolist() == [2, 7]
+    assert dropped["robot_sightings"] == 1
+
+
+def test_robots_in_reads_multi_digit_numbers(tmp_path):
+    """Reference: the file names written here (RobotN_Odometry.dat for N = 1, 12; other files ignored)."""
+    for name in ("Robot1_Odometry.dat", "Robot12_Odometry.dat", "Robot3_Measurement.dat", "Robot4_Odometry.txt"):
+        (tmp_path / name).write_text("")
+    assert robots_in(tmp_path) == [1, 12]
+
+
+def test_write_sorts_barcodes_by_subject_and_refuses_bad_values(tmp_path):
+    """Checked with str.split: Barcodes.dat lists subjects in increasing order whatever the dict order; NaN in the
+    landmarks and measurement times going backwards are refused with a message."""
+    ds = make_dataset(np.random.default_rng(5))
+    shuffled = dict(sorted(BARCODES.items(), key=lambda p: -p[1]))  # subjects 9, 8, 7, 6, 2, 1
+    folder = write_dataset(Dataset(path=None, barcodes=shuffled, landmarks=ds.landmarks, robots=ds.robots),
+                           tmp_path / "a")
+    lines = (folder / "Barcodes.dat").read_text().splitlines()[4:]
+    assert [int(line.split()[0]) for line in lines] == [1, 2, 6, 7, 8, 9]
+    lm = ds.landmarks.copy()
+    lm.loc[7, "y"] = np.nan
+    with pytest.raises(ValueError, match=r"landmarks: row 1 has a NaN"):
+        write_dataset(Dataset(path=None, barcodes=ds.barcodes, landmarks=lm, robots=ds.robots), tmp_path / "b")
+    m = ds.robots[2].measurements
+    m.loc[3, "time"] = m.loc[2, "time"] - 0.5  # half a second backwards
+    with pytest.raises(ValueError, match=r"robot 2 measurements: time goes backwards at row 3"):
+        write_dataset(ds, tmp_path / "c")

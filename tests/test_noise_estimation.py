@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import statistics
 
 import numpy as np
 import pandas as pd
@@ -26,6 +27,7 @@ from fastslam_edu.noise_estimation import (
     MAD_TO_STD,
     dead_reckoning,
     estimate_noise,
+    fit_random_walk,
     fit_range_noise,
     heading_glitches,
     increment_variances,
@@ -37,6 +39,7 @@ from fastslam_edu.noise_estimation import (
     range_noise_profile,
     relative_motion,
     robust_std,
+    usable_groundtruth,
 )
 from fastslam_edu.sim import simulate_dataset
 
@@ -308,3 +311,135 @@ def test_bad_inputs_raise_clearly(clean):
         measurement_residuals(dataclasses.replace(log, groundtruth=gt), clean)
     with pytest.raises(ValueError, match="max_gap"):
         measurement_residuals(log, clean, max_gap=0)
+
+
+# --------------------------------------------------------------------------- hand-made logs
+
+
+def hand_log(t_gt, x, y, theta, v=0.0, omega=0.0, measurements=None, t_end=10.0) -> RobotLog:
+    """A log written by hand: groundtruth rows as given, odometry (v, ω) constant at 10 Hz over [0, t_end]."""
+    t_odo = np.round(np.arange(0.0, t_end + 1e-9, 0.1), 10)
+    odo = pd.DataFrame({"time": t_odo, "v": v, "omega": omega})
+    gt = pd.DataFrame({"time": np.asarray(t_gt, float), "x": np.asarray(x, float) * np.ones(len(t_gt)),
+                       "y": np.asarray(y, float) * np.ones(len(t_gt)), "theta": np.asarray(theta, float) * np.ones(len(t_gt))})
+    m = measurements if measurements is not None else pd.DataFrame(
+        {"time": np.zeros(0), "subject": np.zeros(0, np.int64), "range": np.zeros(0), "bearing": np.zeros(0)})
+    return RobotLog(robot=1, odometry=odo, measurements=m, groundtruth=gt, source="hand-made")
+
+
+def test_usable_groundtruth_keeps_the_first_of_repeated_times():
+    """Reference: the documented rule (times strictly increasing, a repeated time keeps its first row)."""
+    log = hand_log([0.0, 1.0, 1.0, 2.0, 3.0], [0.0, 1.0, 9.0, 2.0, 3.0], 0.0, 0.0)
+    gt = usable_groundtruth(log)
+    assert gt["time"].tolist() == [0.0, 1.0, 2.0, 3.0]
+    assert gt["x"].tolist() == [0.0, 1.0, 2.0, 3.0]
+
+
+def test_measurements_on_a_row_or_across_a_gap_of_exactly_max_gap_are_kept():
+    """Reference: hand count. Groundtruth every 1 s with a 3 s hole (4 → 7 s), max_gap = 1 s: a sighting between
+    rows 1 s apart is kept, one on the row before the hole is kept, one inside the hole is skipped."""
+    t_gt = [0, 1, 2, 3, 4, 7, 8, 9, 10]
+    m = pd.DataFrame({"time": [2.5, 4.0, 5.0, 7.0], "subject": 6, "range": 2.0, "bearing": 0.0})
+    log = hand_log(t_gt, 0.0, 0.0, 0.0, measurements=m)
+    e = measurement_residuals(log, np.array([[2.0, 0.0]]), [6], max_gap=1.0)
+    assert e["time"].tolist() == [2.5, 4.0, 7.0]
+    assert e.attrs["n_in_gaps"] == 1 and e.attrs["n_outside_span"] == 0
+    np.testing.assert_allclose(e["range_residual"], 0.0, atol=1e-12)
+
+
+def test_bearing_residual_is_wrapped_behind_the_robot():
+    """Closed form: a landmark straight behind is expected at bearing π; a reading of −π + 0.01 is 0.01 off."""
+    m = pd.DataFrame({"time": [1.0], "subject": 6, "range": 2.0, "bearing": -np.pi + 0.01})
+    log = hand_log([0, 1, 2], 0.0, 0.0, 0.0, measurements=m)
+    e = measurement_residuals(log, np.array([[-2.0, 0.0]]), [6])
+    assert e["bearing_residual"].iloc[0] == pytest.approx(0.01, abs=1e-12)
+
+
+def test_window_ending_exactly_at_the_end_of_the_data_is_used():
+    """Reference: hand count. Data over [0, 10] s exactly: ten 1 s windows [0, 1] … [9, 10]; noise-free odometry
+    of a straight drive at 0.5 m/s, so every error is 0."""
+    t = np.arange(11.0)
+    e = odometry_increment_errors(hand_log(t, 0.5 * t, 0.0, 0.0, v=0.5), 1.0)
+    assert e["t_start"].tolist() == list(range(10))
+    np.testing.assert_allclose(e["ds_error"], 0.0, atol=1e-9)
+
+
+def test_windows_overlapping_a_groundtruth_gap_are_dropped():
+    """Reference: hand count. Rows at 0–4 s and 7–10 s (a 3 s gap), 2 s windows: [4, 6] and [6, 8] overlap the
+    gap, [0, 2], [2, 4], [8, 10] do not."""
+    t = np.array([0, 1, 2, 3, 4, 7, 8, 9, 10], float)
+    e = odometry_increment_errors(hand_log(t, 0.5 * t, 0.0, 0.0, v=0.5), 2.0)
+    assert e["t_start"].tolist() == [0.0, 2.0, 8.0]
+    assert e.attrs["n_skipped"] == 2
+
+
+def test_turn_error_is_wrapped_when_the_groundtruth_aliases_a_fast_spin():
+    """Closed form: spinning at 4 rad/s seen by 1 Hz groundtruth, unwrapping reads each second's turn as
+    4 − 2π; the odometry's 4 rad is the same heading change, so the (wrapped) error is 0."""
+    t = np.arange(11.0)
+    e = odometry_increment_errors(hand_log(t, 0.0, 0.0, wrap_angle(4.0 * t), omega=4.0), 1.0)
+    assert len(e) == 10
+    np.testing.assert_allclose(e["dtheta_error"], 0.0, atol=1e-9)
+
+
+def test_measurement_noise_counts_short_outliers_and_uses_the_sample_std():
+    """Reference: hand count (|e_r| > 0.5 m on either side) and Python's statistics.stdev / mean of the inliers."""
+    er = [-1.0, 0.8, 0.01, -0.02, 0.03, 0.0]
+    eb = [0.5, -0.5, 0.001, 0.002, -0.003, 0.004]
+    m = measurement_noise(pd.DataFrame({"subject": 6, "range": 2.0, "range_residual": er, "bearing_residual": eb}))
+    assert m.n_outliers == 2 and m.outlier_fraction == pytest.approx(2 / 6)
+    assert m.range_std_inliers == pytest.approx(statistics.stdev(er[2:]), rel=1e-12)
+    assert m.bearing_std_inliers == pytest.approx(statistics.stdev(eb[2:]), rel=1e-12)
+    assert m.range_bias_mean == pytest.approx(statistics.mean(er[2:]), rel=1e-12)
+
+
+def test_range_profile_default_bins_hold_every_residual():
+    """Reference: hand count — the default 0.5 m bins reach past the largest expected range (2.9 m), so every
+    residual lands in a bin."""
+    r = np.array([0.2, 0.7, 1.1, 1.6, 2.2, 2.6, 2.9])
+    frame = pd.DataFrame({"subject": 6, "range": r, "range_expected": r, "range_residual": 0.01 * np.arange(7),
+                          "bearing_residual": 0.0})
+    prof = range_noise_profile(frame, min_count=1)
+    assert prof["n"].sum() == 7
+    assert prof["r_high"].max() >= 2.9
+
+
+def test_fit_range_noise_is_weighted_least_squares_with_weights_n():
+    """Reference: the weighted normal equations (Aᵀ W A) c = Aᵀ W σ with W = diag(n), solved here."""
+    prof = pd.DataFrame({"r_mid": [1.0, 2.0, 3.0], "n": [10, 100, 1000], "sigma_range": [0.05, 0.09, 0.10]})
+    A = np.column_stack([np.ones(3), prof["r_mid"]])
+    W = np.diag(prof["n"].to_numpy(float))
+    ref = np.linalg.solve(A.T @ W @ A, A.T @ W @ prof["sigma_range"].to_numpy())
+    np.testing.assert_allclose(fit_range_noise(prof), ref, rtol=1e-10)
+
+
+def test_fit_random_walk_weights_single_window_and_negative_slope():
+    """References: weighted normal equations with row weights √n / Var (standard error of a variance ∝ Var/√n);
+    the documented closed forms σ² = Var/τ for one window and σ = 0 for a negative slope."""
+    tab = pd.DataFrame({"window": [1.0, 2.0, 4.0], "n": [400, 200, 100],
+                        "var_s": [1.5e-3, 2.0e-3, 4.4e-3], "var_theta": [3e-3, 5e-3, 1.1e-2]})
+    fit = fit_random_walk(tab)
+    A = np.column_stack([np.ones(3), tab["window"]])
+    for col, c, slope in (("var_s", fit.intercept_s, fit.slope_s), ("var_theta", fit.intercept_theta, fit.slope_theta)):
+        W = np.diag(tab["n"] / tab[col] ** 2)
+        ref = np.linalg.solve(A.T @ W @ A, A.T @ W @ tab[col].to_numpy())
+        np.testing.assert_allclose([c, slope], ref, rtol=1e-9)
+    assert fit.sigma_v == pytest.approx(math.sqrt(fit.slope_s))
+    one = fit_random_walk(tab.iloc[[2]])
+    assert one.slope_s == pytest.approx(4.4e-3 / 4.0) and one.intercept_s == 0.0
+    assert one.sigma_omega == pytest.approx(math.sqrt(1.1e-2 / 4.0))
+    falling = fit_random_walk(tab.assign(var_s=[4e-3, 3e-3, 1e-3]))
+    assert falling.slope_s < 0 and falling.sigma_v == 0.0
+
+
+def test_thresholds_are_strict():
+    """Reference: the documented rules — a glitch *exceeds* the threshold, a suspect landmark's offset is
+    *above* max_offset — checked at exactly the threshold (0.5, representable exactly)."""
+    theta = np.array([0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0])  # row 3 is exactly 0.5 rad off its neighbours
+    assert not heading_glitches(np.arange(7.0), theta, threshold=0.5).any()
+    assert heading_glitches(np.arange(7.0), theta, threshold=0.49).tolist() == [False] * 3 + [True] + [False] * 3
+    frame = pd.DataFrame({"subject": [6, 7], "range": 1.0, "range_residual": 0.0, "bearing_residual": 0.0,
+                          "x_seen": [0.5, 3.0], "y_seen": [0.0, 0.6]})
+    check = landmark_check(frame, np.array([[0.0, 0.0], [3.0, 0.0]]), [6, 7], max_offset=0.5)
+    assert check["offset"].tolist() == [0.5, 0.6]
+    assert check["suspect"].tolist() == [False, True]

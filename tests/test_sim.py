@@ -17,7 +17,7 @@ import pytest
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.log import Dataset, RobotLog
 from fastslam_edu.motion import MotionNoise, propagate
-from fastslam_edu.sim import SimConfig, simulate_dataset
+from fastslam_edu.sim import ACCEL_MAX, ANGULAR_ACCEL_MAX, HEADING_GAIN, SimConfig, barcode_of, simulate_dataset
 
 NO_NOISE = MotionNoise()
 
@@ -248,7 +248,10 @@ def test_odometry_noise_has_the_configured_density_and_truth_does_not_depend_on_
         ({"min_range": 6.0}, "min_range"),
         ({"arena": (1.0, 8.0)}, "arena"),
         ({"odometry_noise": MotionNoise("state", sigma_xy=0.1)}, "odometry_noise"),
-        ({"n_landmarks": 10, "arena": (4.0, 4.0)}, "cannot place")  # 2 m × 2 m holds 9,
+        ({"n_landmarks": 10, "arena": (4.0, 4.0)}, "cannot place"),  # 2 m × 2 m holds 9,
+        ({"min_range": 5.0, "max_range": 5.0}, "min_range"),  # an empty range band
+        ({"range_std": -0.1}, "range_std"),
+        ({"fov": (0.5, 0.5)}, "fov"),  # an empty field of view
     ],
 )
 def test_bad_settings_raise_clear_value_error(kwargs, message):
@@ -260,3 +263,74 @@ def test_bad_settings_raise_clear_value_error(kwargs, message):
 def test_bad_seed_raises(seed):
     with pytest.raises(ValueError, match="seed"):
         simulate_dataset(seed, duration=1.0)
+
+
+# --------------------------------------------------------------------------- the true motion, in closed form
+
+
+def _true_commands(seed, duration=20.0):
+    """Noise-free odometry (= the true commands), times from 0, and the groundtruth."""
+    log = simulate_dataset(seed, duration=duration, t0=0.0, odometry_noise=NO_NOISE).robots[1]
+    return log.odometry, log.groundtruth
+
+
+def test_groundtruth_follows_exact_arcs_of_the_held_commands():
+    """Closed form of the unicycle under a held (v, ω) for τ seconds: x += v/ω (sin(θ + ωτ) − sin θ),
+    y −= v/ω (cos(θ + ωτ) − cos θ), θ += ωτ — written as 2 sin(ωτ/2)/ω = τ sinc(ωτ/2π) times
+    (cos, sin)(θ + ωτ/2), which is exact and stable for ω → 0 — chained over the odometry rows from the first
+    groundtruth pose."""
+
+    def arc(x, y, th, v, w, tau):
+        chord = v * tau * np.sinc(w * tau / (2 * np.pi))
+        return x + chord * np.cos(th + w * tau / 2), y + chord * np.sin(th + w * tau / 2), th + w * tau
+
+    odo, gt = _true_commands(0)
+    t, v, w = (odo[c].to_numpy() for c in ("time", "v", "omega"))
+    pose = tuple(gt[["x", "y", "theta"]].iloc[0])
+    start = []
+    for i, tau in enumerate(np.diff(np.append(t, 20.0))):
+        start.append(pose)
+        pose = arc(*pose, v[i], w[i], tau)
+    start = np.array(start)
+    q = gt["time"].to_numpy()
+    i = np.searchsorted(t, q, side="right") - 1
+    ex, ey, eth = arc(*start[i].T, v[i], w[i], q - t[i])
+    np.testing.assert_allclose(gt["x"], ex, atol=1e-9)
+    np.testing.assert_allclose(gt["y"], ey, atol=1e-9)
+    np.testing.assert_allclose(wrap_angle(gt["theta"].to_numpy() - eth), 0.0, atol=1e-9)
+
+
+def test_commands_obey_the_controller_and_its_acceleration_limits():
+    """The documented controller: |Δv| ≤ a_max Δt and |Δω| ≤ α_max Δt over each held interval, and wherever
+    neither limit (nor the ω clip) binds, ω = k e and v = v_max cos²(e), so v = v_max max(cos(ω/k), 0)²."""
+    config = SimConfig()
+    odo, _ = _true_commands(1, duration=60.0)
+    t, v, w = (odo[c].to_numpy() for c in ("time", "v", "omega"))
+    dt = np.diff(np.append(t, 60.0))
+    dv, dw = np.diff(v, prepend=0.0), np.diff(w, prepend=0.0)
+    assert np.all(np.abs(dv) <= ACCEL_MAX * dt + 1e-12)
+    assert np.all(np.abs(dw) <= ANGULAR_ACCEL_MAX * dt + 1e-12)
+    free = (np.abs(dv) < ACCEL_MAX * dt - 1e-9) & (np.abs(dw) < ANGULAR_ACCEL_MAX * dt - 1e-9) \
+        & (np.abs(w) < config.omega_max - 1e-9) & (np.abs(w) > 0.05)
+    assert free.sum() > 100
+    np.testing.assert_allclose(v[free], config.v_max * np.maximum(np.cos(w[free] / HEADING_GAIN), 0.0) ** 2,
+                               atol=1e-12)
+
+
+def test_first_frame_is_after_the_start_and_asymmetric_fov_is_respected():
+    """Reference: the documented rules — frames come after the start; only bearings in [fov[0], fov[1]] are
+    measured (checked on a lopsided field of view against the interpolated groundtruth)."""
+    fov = (-0.2, 1.0)
+    data = simulate_dataset(3, duration=60.0, fov=fov)
+    log = data.robots[1]
+    assert log.measurements["time"].min() > log.groundtruth["time"].iloc[0]
+    _, phi = true_range_bearing(data, log)
+    assert len(phi) > 200 and phi.max() > 0.8
+    assert np.all((phi >= fov[0] - 1e-3) & (phi <= fov[1] + 1e-3))
+
+
+def test_barcodes_are_the_documented_bijection():
+    """Closed form: 37·s mod 97 maps subjects 1 … 96 one-to-one onto 1 … 96 (97 is prime): never 0."""
+    codes = [barcode_of(s) for s in range(1, 97)]
+    assert sorted(codes) == list(range(1, 97))
+    assert barcode_of(1) == 37 and barcode_of(3) == 14

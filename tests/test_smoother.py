@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.experiment import score_estimate, summarize_smoother
 from fastslam_edu.fastslam import FastSLAMParams, run_fastslam
 from fastslam_edu.metrics import landmark_errors_aligned
@@ -242,3 +243,88 @@ def test_pose_standard_deviations():
     np.testing.assert_allclose(result.pose_std[0], PRIOR_STD, rtol=0.01)
     assert np.all(np.isfinite(result.pose_std)) and np.all(result.pose_std > 0)
     assert np.all(np.isnan(smooth(stream, _params()).pose_std))  # not asked for
+
+
+def _stationary_stream(n_steps, sightings, dt=0.1, n_landmarks=2):
+    """A robot standing at the origin (heading 0) for ``n_steps`` steps; ``sightings`` maps step -> [(landmark, point)]:
+    the reading (r, φ) of each world point is computed here in closed form."""
+    z, lm, offsets = [], [], [0]
+    for k in range(n_steps):
+        for j, (px, py) in sightings.get(k, []):
+            z.append([np.hypot(px, py), np.arctan2(py, px)])
+            lm.append(j)
+        offsets.append(len(z))
+    t = dt * np.arange(n_steps)
+    return EventStream(t=t, dt=np.r_[0.0, np.diff(t)], u=np.zeros((n_steps, 2)), offsets=np.array(offsets),
+                       z=np.array(z, dtype=float).reshape(-1, 2), landmark=np.array(lm, dtype=np.int64),
+                       landmark_subjects=np.arange(6, 6 + n_landmarks), x0=np.zeros(3))
+
+
+STILL = MotionNoise(sigma_v=1e-6, sigma_omega=1e-6)  # the robot is known to stand still
+
+
+def test_tempered_sightings_count_as_fractions_in_the_covariance():
+    """Closed form: n readings of one landmark with exponents β_i from a pinned pose give the covariance
+    R_cart / Σβ_i, R_cart = diag((r σ_φ)², σ_r²) for a landmark straight left at range r (β = 1, then Δt/τ)."""
+    r, s_r, s_phi, tau = 2.0, 0.05, 0.02, 1.0
+    stream = _stationary_stream(46, {k: [(0, (0.0, r))] for k in range(0, 46, 5)})  # every 0.5 s: β = 1, 0.5, 0.5, …
+    params = _params(motion_noise=STILL, measurement_correlation_s=tau)
+    result = smooth(stream, params, x0_std=(1e-6, 1e-6, 1e-7))
+    sum_beta = 1.0 + 0.5 * 9
+    np.testing.assert_allclose(result.landmarks[0], [0.0, r], atol=1e-9)
+    np.testing.assert_allclose(result.landmarks_cov[0], np.diag([(r * s_phi) ** 2, s_r**2]) / sum_beta, rtol=0.02,
+                               atol=1e-8)
+
+
+def test_a_landmark_whose_every_sighting_is_gated_out_is_not_observed():
+    """Closed form: three readings of 'one' landmark at the corners of a 1 m equilateral triangle are each
+    0.58 m (d² ≈ 150 > 27.6) from any compromise point, so all are gated; a consistent landmark is kept."""
+    corners = [(3.0 + 0.577 * np.cos(a), 0.577 * np.sin(a)) for a in (0.0, 2.1, 4.2)]
+    sightings = {3: [(0, (0.0, 2.0))], 8: [(0, (0.0, 2.0))], 13: [(0, (0.0, 2.0))],
+                 5: [(1, corners[0])], 10: [(1, corners[1])], 15: [(1, corners[2])]}
+    result = smooth(_stationary_stream(20, sightings), _params(motion_noise=STILL))
+    assert result.measurements_rejected == 3 and result.measurements_used == 3
+    np.testing.assert_array_equal(result.observed, [True, False])
+    assert np.all(np.isnan(result.landmarks[1]))
+    np.testing.assert_allclose(result.landmarks[0], [0.0, 2.0], atol=1e-6)
+
+
+def test_rejected_sightings_are_exactly_those_beyond_the_gate():
+    """Reference: d² = (Δr/σ_r)² + (Δφ/σ_φ)² recomputed here by hand at the returned path and map; the
+    sightings beyond ``gate_chi2`` must be exactly the ones reported rejected."""
+    data, log, stream = simulate(11, duration=90.0, outlier_prob=0.05)
+    params = _params()
+    result = smooth(stream, params)
+    assert result.rounds < 10  # the gate's set settled
+    step = np.repeat(np.arange(len(stream)), np.diff(stream.offsets))
+    pose = result.poses[np.searchsorted(result.steps, step)]
+    m = result.landmarks[stream.landmark]
+    dx, dy = m[:, 0] - pose[:, 0], m[:, 1] - pose[:, 1]
+    dr = stream.z[:, 0] - np.hypot(dx, dy)
+    dphi = np.angle(np.exp(1j * (stream.z[:, 1] - np.arctan2(dy, dx) + pose[:, 2])))
+    d2 = (dr / 0.05) ** 2 + (dphi / 0.02) ** 2
+    outside = ~(d2 <= params.gate_chi2)  # NaN (landmark not kept) counts as outside
+    assert 50 < result.measurements_rejected == int(outside.sum())
+
+
+def test_the_huber_round_alone_resists_outliers():
+    """Known truth: with 5 % outliers, the first (Huber) round's map shape is close to the truth and far better
+    than plain least squares (no gate, no Huber)."""
+    data, log, stream = simulate(11, duration=60.0, outlier_prob=0.05)
+    truth = data.landmark_positions
+    huber = smooth(stream, _params(), max_rounds=1)
+    plain = smooth(stream, _params(gate_chi2=None))
+    assert huber.rounds == 1 and huber.measurements_rejected == 0
+    e_huber = np.nanmean(landmark_errors_aligned(huber.landmarks, truth, huber.observed))
+    e_plain = np.nanmean(landmark_errors_aligned(plain.landmarks, truth, plain.observed))
+    assert e_huber < 0.03 and e_huber < 0.5 * e_plain
+
+
+def test_converges_from_a_poor_dead_reckoning_start():
+    """Known truth: very noisy odometry (dead reckoning metres off) must still end at the right map shape with no
+    sighting gated out (none is an outlier): Levenberg–Marquardt may only accept steps that lower the cost."""
+    data, log, stream = simulate(21, duration=60.0, odometry_noise=MotionNoise(sigma_v=0.05, sigma_omega=0.2))
+    params = _params(motion_noise=MotionNoise(sigma_v=0.1, sigma_omega=0.2))
+    result = smooth(stream, params)
+    assert result.measurements_rejected == 0
+    assert np.nanmean(landmark_errors_aligned(result.landmarks, data.landmark_positions, result.observed)) < 0.03
