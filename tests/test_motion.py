@@ -159,12 +159,14 @@ def test_batch_dimensions_broadcast():
 
 # --------------------------------------------------------------------------- noise
 
-
-@pytest.mark.parametrize(
+BOTH_NOISE_MODES = pytest.mark.parametrize(  # one noise of each mode, for the tests that compare with the loop reference
     "noise",
     [MotionNoise(sigma_v=0.2, sigma_omega=0.3), MotionNoise("state", sigma_xy=0.1, sigma_theta=0.4)],
     ids=["control", "state"],
 )
+
+
+@BOTH_NOISE_MODES
 def test_move_matches_loop_reference_and_sample_motion(noise):
     rng = np.random.default_rng(11)
     x = np.column_stack([rng.normal(size=(50, 2)), rng.uniform(-np.pi, np.pi, 50)])
@@ -313,11 +315,7 @@ def test_n_draws():
 # --------------------------------------------------------------------------- segments and wrapping
 
 
-@pytest.mark.parametrize(
-    "noise",
-    [MotionNoise(sigma_v=0.2, sigma_omega=0.3), MotionNoise("state", sigma_xy=0.1, sigma_theta=0.4)],
-    ids=["control", "state"],
-)
+@BOTH_NOISE_MODES
 def test_move_segment_matches_loop_reference_step_by_step(noise):
     """move_segment over L steps = L steps of the equation-by-equation loop reference, headings wrapped."""
     rng = np.random.default_rng(21)
