@@ -26,6 +26,8 @@ from __future__ import annotations
 import gzip
 import json
 import math
+import zlib
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -209,15 +211,82 @@ def carmen_angles(n: int, step: float | None = None) -> np.ndarray:
     return -math.pi / 2 + step * np.arange(n)
 
 
-# --------------------------------------------------------------------------- CARMEN
+# --------------------------------------------------------------------------- text and gzip input
 
 
-def _open_text(path: Path):
+#: What to do about a damaged data file (said at the end of every such error).
+_REFETCH_HINT = "download it again (for the project's data files: delete it and run `make data`)"
+
+_GZIP_MAGIC = b"\x1f\x8b"
+
+
+def _one_line(exc: BaseException) -> str:
+    """The text of ``exc`` on one line (for quoting a library's message inside ours)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _text_lines(path, *, encoding: str = "ascii", errors: str = "replace"):
+    """Yield ``(line number, line)`` of a text file, plain or gzip-compressed (name ending ``.gz``).
+
+    The data layer's one way to read text: every reader of a text or ``.gz``
+    file goes through it, so that a damaged file gives the same one-line
+    ValueError naming it, wherever it is read:
+
+    * a ``.gz`` file that is empty or not gzip at all (e.g. an HTML error page
+      saved under the data file's name), or a gzip file whose name lacks ``.gz``;
+    * a gzip stream cut short (an interrupted download): "truncated after line N",
+      N being the last whole line read;
+    * corrupt compressed data or a failed CRC/length check ("after line N");
+    * text that is not valid ``encoding`` when ``errors="strict"``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        For a damaged file, as above.
+    """
+    path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
-    if path.suffix == ".gz":
-        return gzip.open(path, "rt", encoding="ascii", errors="replace")
-    return open(path, encoding="ascii", errors="replace")
+    gz = path.suffix == ".gz"
+    with open(path, "rb") as raw:
+        head = raw.read(2)
+        if gz and head != _GZIP_MAGIC:
+            if not head:
+                raise ValueError(f"{path}: empty file (0 bytes), not gzip data; {_REFETCH_HINT}")
+            raw.seek(0)
+            raise ValueError(
+                f"{path}: not gzip data although named .gz (it starts with {raw.read(16)!r}); {_REFETCH_HINT}, "
+                "or, if it is plain text, remove .gz from its name"
+            )
+        if not gz and head == _GZIP_MAGIC:
+            raise ValueError(f"{path}: the file is gzip-compressed but its name does not end in .gz; "
+                             f"rename it to {path.name}.gz")
+        raw.seek(0)
+        with gzip.GzipFile(fileobj=raw) if gz else nullcontext(raw) as f:
+            lineno = 0
+            try:  # bytes lines, decoded one by one: a decoding error then names its line
+                for lineno, line in enumerate(f, start=1):
+                    yield lineno, line.decode(encoding, errors)
+            except UnicodeDecodeError as exc:
+                raise ValueError(
+                    f"{path}:{lineno}: not {exc.encoding.upper()} text (byte 0x{exc.object[exc.start]:02x} at "
+                    f"column {exc.start + 1}: {exc.reason}); {_REFETCH_HINT}"
+                ) from None
+            except EOFError:
+                where = f"after line {lineno}" if lineno else "inside line 1"
+                raise ValueError(
+                    f"{path}: truncated: the gzip data stops {where}, before the end of the file "
+                    f"(an interrupted download?); {_REFETCH_HINT}"
+                ) from None
+            except (zlib.error, gzip.BadGzipFile) as exc:
+                raise ValueError(
+                    f"{path}: corrupt gzip data after line {lineno} ({_one_line(exc)}); {_REFETCH_HINT}"
+                ) from None
+
+
+# --------------------------------------------------------------------------- CARMEN
 
 
 def _floats(tokens, path, lineno, what) -> np.ndarray:
@@ -266,7 +335,8 @@ def read_carmen(path, *, no_return: float | None = None) -> LaserLog:
         If ``path`` does not exist.
     ValueError
         Naming file and line, for a short or non-numeric ``FLASER``/``ODOM``
-        line, a non-finite pose, scans of different lengths, or no scan at all.
+        line, a non-finite pose, scans of different lengths, or no scan at all;
+        for a damaged ``.gz`` (not gzip, truncated after line N, corrupt data).
     """
     path = Path(path)
     params: dict[str, str] = {}
@@ -275,53 +345,52 @@ def read_carmen(path, *, no_return: float | None = None) -> LaserLog:
     first_odom = None
     current_odom = np.full(3, np.nan)
     n_beams = None
-    with _open_text(path) as f:
-        for lineno, line in enumerate(f, start=1):
-            tok = line.split()
-            if not tok:
-                continue
-            kind = tok[0] if not tok[0].startswith("#") else "#"
-            counts[kind] = counts.get(kind, 0) + 1
-            if kind == "PARAM":
-                if len(tok) >= 3:
-                    params[tok[1]] = tok[2]
-            elif kind == "ODOM":
-                if len(tok) < 4:
-                    raise ValueError(
-                        f"{path}:{lineno}: ODOM line has {len(tok)} fields, expected at least 4 (ODOM x y θ …)"
-                    )
-                pose = _floats(tok[1:4], path, lineno, "ODOM pose")
-                if not np.isfinite(pose).all():
-                    raise ValueError(f"{path}:{lineno}: non-finite ODOM pose {pose.tolist()}")
-                current_odom = pose
-                if first_odom is None:
-                    first_odom = pose
-            elif kind == "FLASER":
-                try:
-                    n = int(tok[1])
-                except (IndexError, ValueError):
-                    raise ValueError(
-                        f"{path}:{lineno}: FLASER line must start with the beam count, got {tok[1:2]}"
-                    ) from None
-                if n < 1 or len(tok) < n + 9:
-                    raise ValueError(
-                        f"{path}:{lineno}: short FLASER line: {len(tok)} fields for n = {n} beams, expected "
-                        f"{n + 11} (FLASER n r_1…r_n x y θ odom_x odom_y odom_θ ipc_t host logger_t)"
-                    )
-                if n_beams is None:
-                    n_beams = n
-                elif n != n_beams:
-                    raise ValueError(f"{path}:{lineno}: FLASER with {n} beams after scans of {n_beams} beams")
-                r = _floats(tok[2 : 2 + n], path, lineno, "FLASER ranges")
-                both = _floats(tok[2 + n : 8 + n], path, lineno, "FLASER pose")
-                if not np.isfinite(both).all():
-                    raise ValueError(f"{path}:{lineno}: non-finite FLASER pose {both.tolist()}")
-                stamp = tok[-1] if len(tok) >= n + 11 else tok[8 + n]
-                t.append(_floats([stamp], path, lineno, "FLASER timestamp")[0])
-                ranges.append(r)
-                poses.append(both[:3])
-                odoms.append(both[3:])
-                last_odom.append(current_odom)
+    for lineno, line in _text_lines(path):
+        tok = line.split()
+        if not tok:
+            continue
+        kind = tok[0] if not tok[0].startswith("#") else "#"
+        counts[kind] = counts.get(kind, 0) + 1
+        if kind == "PARAM":
+            if len(tok) >= 3:
+                params[tok[1]] = tok[2]
+        elif kind == "ODOM":
+            if len(tok) < 4:
+                raise ValueError(
+                    f"{path}:{lineno}: ODOM line has {len(tok)} fields, expected at least 4 (ODOM x y θ …)"
+                )
+            pose = _floats(tok[1:4], path, lineno, "ODOM pose")
+            if not np.isfinite(pose).all():
+                raise ValueError(f"{path}:{lineno}: non-finite ODOM pose {pose.tolist()}")
+            current_odom = pose
+            if first_odom is None:
+                first_odom = pose
+        elif kind == "FLASER":
+            try:
+                n = int(tok[1])
+            except (IndexError, ValueError):
+                raise ValueError(
+                    f"{path}:{lineno}: FLASER line must start with the beam count, got {tok[1:2]}"
+                ) from None
+            if n < 1 or len(tok) < n + 9:
+                raise ValueError(
+                    f"{path}:{lineno}: short FLASER line: {len(tok)} fields for n = {n} beams, expected "
+                    f"{n + 11} (FLASER n r_1…r_n x y θ odom_x odom_y odom_θ ipc_t host logger_t)"
+                )
+            if n_beams is None:
+                n_beams = n
+            elif n != n_beams:
+                raise ValueError(f"{path}:{lineno}: FLASER with {n} beams after scans of {n_beams} beams")
+            r = _floats(tok[2 : 2 + n], path, lineno, "FLASER ranges")
+            both = _floats(tok[2 + n : 8 + n], path, lineno, "FLASER pose")
+            if not np.isfinite(both).all():
+                raise ValueError(f"{path}:{lineno}: non-finite FLASER pose {both.tolist()}")
+            stamp = tok[-1] if len(tok) >= n + 11 else tok[8 + n]
+            t.append(_floats([stamp], path, lineno, "FLASER timestamp")[0])
+            ranges.append(r)
+            poses.append(both[:3])
+            odoms.append(both[3:])
+            last_odom.append(current_odom)
     if not t:
         raise ValueError(f"{path}: no FLASER line (counted messages: {counts})")
     if no_return is None:
@@ -408,6 +477,14 @@ def read_intel_json(path, *, kind: str | None = None, no_return: float = DEFAULT
         Default: guessed from the file name (``gfs`` → odometry, ``corrected`` → corrected).
     no_return : float
         Readings ``≥`` this [m] become ``np.nan`` (the file writes 81.83 m).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        Naming the file: a damaged ``.gz`` (not gzip, truncated, corrupt data),
+        text that is not UTF-8 or not JSON, a malformed scan entry.
     """
     path = Path(path)
     if kind is None:
@@ -417,11 +494,11 @@ def read_intel_json(path, *, kind: str | None = None, no_return: float = DEFAULT
             raise ValueError(f"read_intel_json: {path}: cannot tell the pose kind from the name; pass kind=")
     if kind not in ("odometry", "corrected"):
         raise ValueError(f"read_intel_json: kind must be 'odometry' or 'corrected', got {kind!r}")
-    with _open_text(path) as f:
-        try:
-            doc = json.load(f)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    text = "".join(line for _, line in _text_lines(path, encoding="utf-8", errors="strict"))  # JSON is UTF-8
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({_one_line(exc)}); {_REFETCH_HINT}") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("map"), dict) or not doc["map"]:
         raise ValueError(f"{path}: expected a JSON object {{'map': {{time: scan, …}}}} with at least one scan")
     t, ranges, poses = [], [], []
@@ -460,20 +537,29 @@ def read_relations(path) -> pd.DataFrame:
     -------
     pandas.DataFrame
         Columns ``t1, t2, x, y, z, roll, pitch, yaw`` (float), one row per line.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        Naming file and line, for a line without 8 numbers or with a non-finite
+        one; naming the file, for a file with no relation or a damaged ``.gz``.
     """
     path = Path(path)
     rows = []
-    with _open_text(path) as f:
-        for lineno, line in enumerate(f, start=1):
-            tok = line.split()
-            if not tok or tok[0].startswith("#"):
-                continue
-            if len(tok) != 8:
-                raise ValueError(f"{path}:{lineno}: expected 8 fields (t1 t2 x y z roll pitch yaw), got {len(tok)}")
-            vals = _floats(tok, path, lineno, "relation")
-            if not np.isfinite(vals).all():
-                raise ValueError(f"{path}:{lineno}: non-finite value in relation {vals.tolist()}")
-            rows.append(vals)
+    for lineno, line in _text_lines(path):
+        tok = line.split()
+        if not tok or tok[0].startswith("#"):
+            continue
+        if len(tok) != 8:
+            raise ValueError(f"{path}:{lineno}: expected 8 fields (t1 t2 x y z roll pitch yaw), got {len(tok)}")
+        vals = _floats(tok, path, lineno, "relation")
+        if not np.isfinite(vals).all():
+            raise ValueError(f"{path}:{lineno}: non-finite value in relation {vals.tolist()}")
+        rows.append(vals)
+    if not rows:
+        raise ValueError(f"{path}: no relation (expected lines 't1 t2 x y z roll pitch yaw')")
     return pd.DataFrame(np.array(rows).reshape(-1, 8), columns=RELATION_COLUMNS)
 
 
@@ -552,8 +638,31 @@ class ThorLidar:
 _THOR_V1_FIELDS = ("t", "pose", "res", "rpy", "scan")
 
 
+_NOT_NUMERIC = {"c": "complex numbers", "O": "a cell array", "U": "text", "S": "text", "V": "a struct"}
+
+
+def _numeric(value, what: str, where: str) -> np.ndarray:
+    """A MAT variable or struct field as a float array; a ValueError naming it if it holds no real numbers."""
+    a = np.asarray(value)
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"{where}: {what} must be numeric, got {_NOT_NUMERIC.get(a.dtype.kind, a.dtype)}")
+    return a.astype(float)
+
+
+def _loadmat(path: Path) -> dict:
+    """``scipy.io.loadmat(path)``; FileNotFoundError if missing, a one-line ValueError if unreadable."""
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        return scipy.io.loadmat(path)
+    except Exception as exc:  # scipy raises ValueError, TypeError, OSError, … for damaged files
+        raise ValueError(
+            f"{path}: not a readable MATLAB .mat file, truncated or damaged ({_one_line(exc)}); {_REFETCH_HINT}"
+        ) from None
+
+
 def _row(value, n: int | None, what: str, where: str) -> np.ndarray:
-    a = np.asarray(value, dtype=float).ravel()
+    a = _numeric(value, f"field {what!r}", where).ravel()
     if n is not None and a.size != n:
         raise ValueError(f"{where}: field {what!r} has {a.size} values, expected {n}")
     return a
@@ -574,16 +683,12 @@ def read_thor_lidar(path) -> ThorLidar:
     Raises
     ------
     FileNotFoundError, ValueError
-        Missing file; no ``lidar`` variable; a struct with unexpected fields or
+        Missing file; a file scipy cannot read (truncated, not a MAT file); no
+        ``lidar`` variable; a struct with unexpected or non-numeric fields or
         sizes (naming the scan index); scans of different lengths.
     """
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
-    try:
-        d = scipy.io.loadmat(path)
-    except Exception as exc:  # scipy raises several types for corrupt files
-        raise ValueError(f"{path}: not a readable MATLAB file ({exc})") from None
+    d = _loadmat(path)
     if "lidar" not in d:
         raise ValueError(f"{path}: no variable 'lidar' (found {sorted(k for k in d if not k.startswith('__'))})")
     cells = d["lidar"]
@@ -657,19 +762,22 @@ def read_thor_joints(path):
     Returns
     -------
     t, neck, head : ndarray, shape (n,) each
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Missing file; a file scipy cannot read (truncated, not a MAT file); a
+        missing, empty, non-numeric or mis-shaped ``ts`` / ``head_angles``.
     """
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
-    try:
-        d = scipy.io.loadmat(path)
-    except Exception as exc:
-        raise ValueError(f"{path}: not a readable MATLAB file ({exc})") from None
+    d = _loadmat(path)
     for key in ("ts", "head_angles"):
         if key not in d:
             raise ValueError(f"{path}: no variable {key!r} (found {sorted(k for k in d if not k.startswith('__'))})")
-    t = np.asarray(d["ts"], dtype=float).ravel()
-    h = np.asarray(d["head_angles"], dtype=float)
+    t = _numeric(d["ts"], "'ts'", str(path)).ravel()
+    h = _numeric(d["head_angles"], "'head_angles'", str(path))
+    if t.size == 0:
+        raise ValueError(f"{path}: 'ts' is empty (no joint sample)")
     if h.ndim != 2 or h.shape != (2, t.size):
         raise ValueError(f"{path}: head_angles must be (2, {t.size}) like ts, got {h.shape}")
     if not (np.isfinite(t).all() and np.isfinite(h).all()):
