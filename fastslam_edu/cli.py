@@ -89,6 +89,11 @@ def build_parser() -> argparse.ArgumentParser:
     gs.add_argument("--json", type=Path, help="write the metrics, parameters and seed to this JSON file")
     gs.add_argument("--map", type=Path, help="write the map and path to this PNG")
     gs.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    from .datasets.registry import add_arguments as add_data_arguments
+
+    add_data_arguments(sub.add_parser("data", help="fetch (or --check) the registered datasets into $FASTSLAM_EDU_DATA, "
+                                                   "one line per dataset"))
     return parser
 
 
@@ -285,6 +290,13 @@ def cmd_gridslam(args) -> int:
     return 0
 
 
+def cmd_data(args) -> int:
+    """``fastslam-edu data [NAME ...] [--check] [--quiet]``: see :mod:`fastslam_edu.datasets.registry`."""
+    from .datasets.registry import run_command
+
+    return run_command(args)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -293,6 +305,8 @@ def main(argv=None) -> int:
             return cmd_run(args)
         if args.command == "gridslam":
             return cmd_gridslam(args)
+        if args.command == "data":
+            return cmd_data(args)
     except (ValueError, FileNotFoundError, OSError) as exc:
         print(f"fastslam-edu {args.command}: error: {exc}", file=sys.stderr)
         return 1

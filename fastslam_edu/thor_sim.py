@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from fastslam_edu.angles import wrap_angle
-from fastslam_edu.datasets.laser import LASER_SOURCES, laser_file, read_thor_joints, thor_angles, write_thor_lidar
+from fastslam_edu.datasets.laser import read_thor_joints, thor_angles, write_thor_lidar
 from fastslam_edu.se2 import compose_increments, path_increments
 from fastslam_edu.thor import MAX_RANGE, beam_directions_world, nearest_sample
 
@@ -612,22 +612,11 @@ def write_sequence(seq: ThorSequence, path, *, variant: int = 1) -> Path:
 def real_thor_joints(*, download: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The real joint log of THOR training sequence 0: ``t``, ``neck``, ``head`` (shape (38318,) each).
 
-    Read from ``<data_root>/thor/train_joint0.mat``
-    (:func:`fastslam_edu.datasets.data_root`) with
-    :func:`fastslam_edu.datasets.laser.read_thor_joints`. With
-    ``download=True`` a missing file is fetched first from its public source
-    (:data:`fastslam_edu.datasets.laser.LASER_SOURCES`), as a notebook on Colab needs.
+    Read from ``<data_root>/thor/train_joint0.mat`` (the registry's ``thor`` dataset,
+    :func:`fastslam_edu.datasets.dataset_path`) with
+    :func:`fastslam_edu.datasets.laser.read_thor_joints`. With ``download=True`` a
+    missing or altered file is fetched from its pinned source and checked first.
     """
-    relpath = "thor/train_joint0.mat"
-    try:
-        path = laser_file(relpath)
-    except FileNotFoundError:
-        if not download:
-            raise
-        from fastslam_edu.datasets import data_root
-        from fastslam_edu.datasets.fetch import download as fetch
+    from fastslam_edu.datasets import dataset_path
 
-        path = data_root() / relpath
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fetch(LASER_SOURCES[relpath], path)
-    return read_thor_joints(path)
+    return read_thor_joints(dataset_path("thor", download=download) / "train_joint0.mat")

@@ -14,7 +14,6 @@ from fastslam_edu.datasets.laser import (
     LaserLog,
     carmen_angles,
     compose_increments,
-    laser_file,
     odometry_increments,
     read_carmen,
     read_intel_json,
@@ -366,10 +365,3 @@ def test_read_thor_joints(tmp_path):
         read_thor_joints(tmp_path / "none.mat")
 
 
-def test_laser_file_finds_the_file_or_says_where_to_get_it(tmp_path, monkeypatch):
-    monkeypatch.setenv("FASTSLAM_EDU_DATA", str(tmp_path))
-    with pytest.raises(FileNotFoundError, match=r"acschaefer/ple.*freiburg-079-corrected\.log\.gz"):
-        laser_file("fr079/freiburg-079-corrected.log.gz")
-    (tmp_path / "fr079").mkdir()
-    (tmp_path / "fr079" / "freiburg-079-corrected.log.gz").write_bytes(b"")
-    assert laser_file("fr079/freiburg-079-corrected.log.gz") == tmp_path / "fr079" / "freiburg-079-corrected.log.gz"

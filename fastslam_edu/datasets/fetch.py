@@ -2,9 +2,10 @@
 
 The nine datasets are published as ``MRCLAM_Dataset{n}.zip`` on
 http://asrl.utias.utoronto.ca/datasets/mrclam/ (Leung et al., IJRR 2011).
-:func:`fetch_mrclam` downloads one, checks it, and unpacks it to
+:func:`fetch_mrclam` downloads one with pooch, checks it, and unpacks it to
 ``<dest>/MRCLAM_Dataset{n}/``, the layout :func:`fastslam_edu.datasets.mrclam_path`
-expects under ``$FASTSLAM_EDU_DATA/mrclam``.
+expects under ``$FASTSLAM_EDU_DATA/mrclam``. (Datasets 1 and 6 also come, file
+by file and pinned by sha256, from :mod:`fastslam_edu.datasets.registry`.)
 
 From the command line::
 
@@ -14,22 +15,20 @@ From the command line::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
+import logging
 import os
+import re
 import shutil
 import sys
 import tempfile
-import urllib.error
-import urllib.request
 import zipfile
+import zlib
 from pathlib import Path, PurePosixPath
-
-from tqdm.auto import tqdm
 
 OFFICIAL_URL = "http://asrl.utias.utoronto.ca/datasets/mrclam/"
 """Folder of the official ``MRCLAM_Dataset{n}.zip`` files."""
-
-CHUNK = 1 << 20
 
 
 class FetchError(RuntimeError):
@@ -55,33 +54,80 @@ def missing_files(folder: str | Path) -> list[str]:
             if not (folder / name).is_file() or (folder / name).stat().st_size == 0]
 
 
-def download(url: str, target: Path, *, timeout: float = 60, progress: bool = True) -> str:
-    """Stream ``url`` to the file ``target``; return the SHA-256 hex digest of the bytes.
+@contextlib.contextmanager
+def pooch_log_silenced():
+    """Within the block, pooch logs only warnings (not its 'Downloading file ...' lines on stderr)."""
+    import pooch
+
+    logger = pooch.get_logger()
+    level = logger.level
+    logger.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+def pooch_download(url: str, folder: Path, *, sha256: str | None = None, retries: int = 2,
+                   timeout: float = 60, progress: bool = True) -> Path:
+    """Download ``url`` with pooch into the existing ``folder``; return the path of the file.
+
+    Pooch streams into a temporary name and keeps the file only if its
+    SHA-256 equals ``sha256`` (hex; not checked when None). A failed attempt
+    is repeated ``retries`` times, waiting 1 s, 2 s, ... in between; each
+    network operation waits at most ``timeout`` seconds.
 
     Raises
     ------
-    FetchError
-        On an HTTP error status, a connection failure or a time-out.
+    requests.exceptions.RequestException
+        HTTP error status, no connection, time-out (after the last attempt).
+    ValueError
+        SHA-256 mismatch (pooch's message: ``expected sha256:X but got Y``).
     """
+    import pooch
+
+    name = PurePosixPath(url.split("?")[0]).name or "download"
+    known = None if sha256 is None else f"sha256:{sha256.strip().lower()}"
+    store = pooch.create(path=folder, base_url="", registry={name: known}, urls={name: url},
+                         retry_if_failed=retries)
+    with pooch_log_silenced():
+        return Path(store.fetch(name, downloader=pooch.HTTPDownloader(progressbar=progress, timeout=timeout),
+                                progressbar=progress))
+
+
+def sha256_of_file(path: Path) -> str:
+    """SHA-256 (hex) of the bytes of the file ``path``."""
     digest = hashlib.sha256()
-    try:
-        with urllib.request.urlopen(url, timeout=timeout) as response, open(target, "wb") as out:
-            total = response.headers.get("Content-Length")
-            with tqdm(total=int(total) if total else None, unit="B", unit_scale=True,
-                      desc=PurePosixPath(url).name, disable=not progress) as bar:
-                while chunk := response.read(CHUNK):
-                    out.write(chunk)
-                    digest.update(chunk)
-                    bar.update(len(chunk))
-    except urllib.error.HTTPError as exc:
-        raise FetchError(
-            f"download of {url} failed: HTTP {exc.code} {exc.reason}. If the UTIAS page has moved, "
-            f"pass base_url= (or --base-url) pointing to the folder that holds the zip."
-        ) from None
-    except (urllib.error.URLError, OSError) as exc:
-        reason = getattr(exc, "reason", exc)
-        raise FetchError(f"download of {url} failed: {reason}") from None
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            digest.update(chunk)
     return digest.hexdigest()
+
+
+def failure_reason(exc: BaseException) -> str:
+    """What went wrong in a download, in a few words on one line (``HTTP 404 Not Found``, ``connection refused``...)."""
+    import requests
+
+    if isinstance(exc, requests.exceptions.HTTPError) and exc.response is not None:
+        return f"HTTP {exc.response.status_code} {exc.response.reason}".strip()
+    if isinstance(exc, requests.exceptions.Timeout):
+        return "the server did not answer in time (time-out)"
+    text = " ".join(str(exc).split())
+    if isinstance(exc, requests.exceptions.ConnectionError):
+        errno = re.search(r"\[Errno -?\d+\] ([^'\")\]]+)", text)
+        return f"connection failed: {errno.group(1).strip() if errno else text}"
+    mismatch = sha256_mismatch(exc)
+    if mismatch is not None:
+        return f"sha256 mismatch: expected {mismatch[0]}, got {mismatch[1]}"
+    if isinstance(exc, OSError) and exc.strerror:
+        return f"{exc.strerror}" + (f": {exc.filename}" if exc.filename else "")
+    return text or type(exc).__name__
+
+
+def sha256_mismatch(exc: BaseException) -> tuple[str, str] | None:
+    """(expected, got) hex digests from pooch's hash-mismatch ValueError; None for any other error."""
+    found = re.search(r"expected (?:sha256:)?([0-9a-fA-F]{64}) but got ([0-9a-fA-F]{64})", str(exc))
+    return None if found is None else (found.group(1).lower(), found.group(2).lower())
 
 
 def _safe_relative(name: str, archive: str) -> PurePosixPath:
@@ -104,6 +150,33 @@ def dataset_root_in_zip(names: list[str], archive: str) -> PurePosixPath:
     return roots.pop()
 
 
+ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError, ValueError, OSError)
+"""What zipfile raises on a damaged archive: bad headers, a broken deflate stream, a cut-off member,
+an unknown compression method, a spurious 'encrypted' flag or a garbled name."""
+
+
+def open_zip(archive: Path) -> zipfile.ZipFile:
+    """The zip ``archive`` opened for reading; ValueError (one line) if it is not a readable zip."""
+    try:
+        return zipfile.ZipFile(archive)
+    except ZIP_ERRORS as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ValueError(f"{archive} is not a valid zip archive ({archive.stat().st_size} bytes): {reason}") from None
+
+
+def corrupted_member(zf: zipfile.ZipFile) -> tuple[str, str] | None:
+    """(name, reason) of the first member that cannot be read back intact (CRC, deflate stream, header); else None."""
+    for info in zf.infolist():
+        try:
+            with zf.open(info) as member:
+                while member.read(1 << 20):
+                    pass
+        except ZIP_ERRORS as exc:
+            reason = " ".join(str(exc).split()) or type(exc).__name__
+            return info.filename, reason
+    return None
+
+
 def unpack_dataset(archive: Path, folder: Path) -> Path:
     """Check the zip ``archive`` and unpack its dataset files into ``folder``.
 
@@ -114,20 +187,17 @@ def unpack_dataset(archive: Path, folder: Path) -> Path:
     Raises
     ------
     ValueError
-        If the file is not a zip, a member's CRC fails, a member path would
-        escape ``folder``, or an expected file is missing.
+        If the file is not a zip (or is cut short), a member is corrupted
+        (CRC or deflate stream), a member path would escape ``folder``, or an
+        expected file is missing. The message is one line naming the archive.
     """
-    try:
-        zf = zipfile.ZipFile(archive)
-    except zipfile.BadZipFile:
-        raise ValueError(f"{archive} is not a valid zip archive ({archive.stat().st_size} bytes)") from None
-    with zf:
+    with open_zip(archive) as zf:
         members = [m for m in zf.infolist() if not m.is_dir()]
         for m in members:
             _safe_relative(m.filename, str(archive))
-        bad = zf.testzip()
+        bad = corrupted_member(zf)
         if bad is not None:
-            raise ValueError(f"{archive}: member {bad!r} is corrupted (CRC check failed)")
+            raise ValueError(f"{archive}: member {bad[0]!r} is corrupted (CRC check failed or unreadable: {bad[1]})")
         root = dataset_root_in_zip([m.filename for m in members], str(archive))
         selected = {}
         for m in members:
@@ -150,16 +220,17 @@ def unpack_dataset(archive: Path, folder: Path) -> Path:
 
 
 def fetch_mrclam(n: int, dest: str | Path, *, base_url: str = OFFICIAL_URL, sha256: str | None = None,
-                 timeout: float = 60, progress: bool = True) -> Path:
+                 timeout: float = 60, progress: bool = True, retries: int = 2) -> Path:
     """Download MR.CLAM dataset ``n`` and unpack it to ``dest/MRCLAM_Dataset{n}/``.
 
     Steps: skip everything if that folder already holds the expected files
     (``Barcodes.dat``, ``Landmark_Groundtruth.dat``,
-    ``Robot{1..5}_{Odometry,Measurement}.dat``); otherwise stream
-    ``{base_url}/MRCLAM_Dataset{n}.zip`` to a temporary file in ``dest``
-    (with a tqdm progress bar), compare its SHA-256 with ``sha256`` if
-    given, test the zip (CRC of every member, no path escaping the folder,
-    expected files present), and unpack it. The temporary file is removed.
+    ``Robot{1..5}_{Odometry,Measurement}.dat``); otherwise download
+    ``{base_url}/MRCLAM_Dataset{n}.zip`` with pooch into a temporary folder in
+    ``dest`` (pooch's progress bar; pooch checks ``sha256`` if given), test
+    the zip (every member read back and CRC-checked, no path escaping the
+    folder, expected files present), and unpack it. The temporary folder is
+    always removed.
 
     Parameters
     ----------
@@ -175,6 +246,8 @@ def fetch_mrclam(n: int, dest: str | Path, *, base_url: str = OFFICIAL_URL, sha2
         Seconds to wait for the server on each network operation.
     progress : bool
         Show a progress bar.
+    retries : int
+        Further attempts after a failed download (waiting 1 s, 2 s, ... in between).
 
     Returns
     -------
@@ -187,7 +260,7 @@ def fetch_mrclam(n: int, dest: str | Path, *, base_url: str = OFFICIAL_URL, sha2
         If the download fails (HTTP error such as 404, no connection).
     ValueError
         On a checksum mismatch, a file that is not a valid zip, a corrupted
-        or unsafe member, or missing dataset files.
+        or unsafe member, or missing dataset files (one line, naming the file).
     """
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError(f"dataset number must be a positive int, got {n!r}")
@@ -198,10 +271,7 @@ def fetch_mrclam(n: int, dest: str | Path, *, base_url: str = OFFICIAL_URL, sha2
     dest.mkdir(parents=True, exist_ok=True)
     url = dataset_url(n, base_url)
     with tempfile.TemporaryDirectory(dir=dest, prefix=f".MRCLAM_Dataset{n}-") as tmp:
-        archive = Path(tmp) / f"MRCLAM_Dataset{n}.zip"
-        digest = download(url, archive, timeout=timeout, progress=progress)
-        if sha256 is not None and digest != sha256.strip().lower():
-            raise ValueError(f"checksum mismatch for {url}: expected sha256 {sha256.strip().lower()}, got {digest}")
+        archive = downloaded_zip(url, Path(tmp), sha256=sha256, timeout=timeout, progress=progress, retries=retries)
         staging = unpack_dataset(archive, Path(tmp) / "unpacked")
         for path in sorted(staging.rglob("*")):
             if path.is_file():
@@ -209,6 +279,24 @@ def fetch_mrclam(n: int, dest: str | Path, *, base_url: str = OFFICIAL_URL, sha2
                 target.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(path, target)
     return folder
+
+
+def downloaded_zip(url: str, folder: Path, *, sha256: str | None, timeout: float, progress: bool,
+                   retries: int) -> Path:
+    """Path of ``url`` downloaded into ``folder``; FetchError if the transfer fails, ValueError on a checksum mismatch."""
+    import requests
+
+    try:
+        return pooch_download(url, folder, sha256=sha256, retries=retries, timeout=timeout, progress=progress)
+    except ValueError as exc:
+        mismatch = sha256_mismatch(exc)
+        if mismatch is None:
+            raise
+        raise ValueError(f"checksum mismatch for {url}: expected sha256 {mismatch[0]}, got {mismatch[1]}") from None
+    except (requests.exceptions.RequestException, OSError) as exc:
+        hint = (" If the UTIAS page has moved, pass base_url= (or --base-url) pointing to the folder that holds the zip."
+                if isinstance(exc, requests.exceptions.HTTPError) else "")
+        raise FetchError(f"download of {url} failed: {failure_reason(exc)}.{hint}") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -225,12 +313,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--base-url", default=OFFICIAL_URL, help=f"folder URL of the zips (default {OFFICIAL_URL})")
     parser.add_argument("--sha256", default=None, help="expected SHA-256 of the zip")
     parser.add_argument("--timeout", type=float, default=60.0)
+    parser.add_argument("--retries", type=int, default=2, help="further attempts after a failed download (default 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     dest = args.dest if args.dest is not None else data_root() / "mrclam"
     try:
         folder = fetch_mrclam(args.n, dest, base_url=args.base_url, sha256=args.sha256,
-                              timeout=args.timeout, progress=not args.quiet)
+                              timeout=args.timeout, progress=not args.quiet, retries=max(args.retries, 0))
     except (FetchError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -242,10 +331,11 @@ __all__ = [
     "OFFICIAL_URL",
     "FetchError",
     "dataset_url",
-    "download",
     "expected_files",
+    "failure_reason",
     "fetch_mrclam",
     "missing_files",
+    "pooch_download",
     "unpack_dataset",
 ]
 

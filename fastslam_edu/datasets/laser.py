@@ -52,65 +52,11 @@ __all__ = [
     "carmen_angles",
     "thor_angles",
     "DEFAULT_NO_RETURN",
-    "LASER_SOURCES",
-    "laser_file",
 ]
 
 #: Ranges at or beyond this [m] are "no return" when a log has no ``robot_front_laser_max``
 #: PARAM: SICK LMS scanners reach 80 m and CARMEN logs write 81.83 / 81.91 m for "nothing seen".
 DEFAULT_NO_RETURN = 80.0
-
-
-#: Where each 2D laser file under the data folder comes from (see the READMEs next to the files).
-LASER_SOURCES = {
-    "fr079/freiburg-079-corrected.log.gz": (
-        "https://raw.githubusercontent.com/acschaefer/ple/cfcb5a7f12a793b616357381a688cfcc26eed347/"
-        "data/carmen/freiburg-079-corrected.log.gz"
-    ),
-    "fr079/fr079.relations": (
-        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
-        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/RawData/fr079.relations"
-    ),
-    "intel/intel.gfs.log.gz": (
-        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
-        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/RawData/intel.gfs.log (gzip it)"
-    ),
-    "intel/intel_gfs.json.gz": (
-        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
-        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/PreprocessedData/intel_gfs (gzip it)"
-    ),
-    "intel/intel_corrected_log.json.gz": (
-        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
-        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/PreprocessedData/intel_corrected_log (gzip it)"
-    ),
-    "intel/intel.relations": (
-        "https://raw.githubusercontent.com/xiaofeng419/ROBOTICS_2DSCAN_SLAM/"
-        "d469252f5b33e574bd239ad2625779497ac1d4cc/DataSet/RawData/intel.relations"
-    ),
-    "thor/train_joint0.mat": (
-        "https://raw.githubusercontent.com/abhikandoi2000/particle-filter-slam/"
-        "8e3a9f6b8f8a450822c514e5ae0e82b4828589e3/joint/train_joint0.mat"
-    ),
-}
-
-
-def laser_file(relpath: str) -> Path:
-    """Path of a laser data file under the data folder, e.g. ``laser_file("fr079/freiburg-079-corrected.log.gz")``.
-
-    Looks in :func:`fastslam_edu.datasets.data_root` (``$FASTSLAM_EDU_DATA``).
-    A missing file raises FileNotFoundError saying where it was looked for and
-    where to download it from (:data:`LASER_SOURCES`).
-    """
-    from fastslam_edu.datasets import ENV_VAR, data_root
-
-    path = data_root() / relpath
-    if not path.is_file():
-        source = LASER_SOURCES.get(relpath, "see the README of its folder")
-        raise FileNotFoundError(
-            f"{relpath} not found at {path}. Set {ENV_VAR} to the folder that holds '{relpath}', "
-            f"or download it from {source} and save it as {path}."
-        )
-    return path
 
 
 # --------------------------------------------------------------------------- the log structure
