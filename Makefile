@@ -1,6 +1,8 @@
 # The two commands of the README:
-#   make book   -> venv, install, build the book executing every notebook (_build/html)
-#   make test   -> venv, install, run every test (package tests + notebooks)
+#   make book   -> venv, install, fetch and verify the data, build the book executing the notebooks (_build/html)
+#   make test   -> venv, install, fetch and verify the data, run every test (package tests + notebooks)
+# In class:
+#   make lab    -> JupyterLab from the project's venv, with the data folder set (extra arguments: LAB_ARGS=...)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
@@ -9,8 +11,12 @@ BIN    := $(VENV)/bin
 DATA := $(or $(FASTSLAM_EDU_DATA),$(CURDIR)/data)
 override FASTSLAM_EDU_DATA := $(if $(filter ~%,$(DATA)),$(DATA),$(abspath $(DATA)))
 export FASTSLAM_EDU_DATA
+LAB_ARGS ?=
+# a chapter with equations, rendered offline by `make check-math`
+MATH_PAGE ?= _build/html/notebooks/04_one_landmark_ekf.html
+CHROMIUM ?= chromium
 
-.PHONY: venv book book-strict test test-package test-notebooks bench clean
+.PHONY: venv lab-venv data book book-force book-strict test test-package test-notebooks lab check-math bench clean
 
 $(BIN)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -19,24 +25,49 @@ $(BIN)/.installed: pyproject.toml constraints.txt
 	$(BIN)/python -m ipykernel install --sys-prefix --name python3 >/dev/null
 	touch $@
 
+$(BIN)/.lab-installed: $(BIN)/.installed
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[lab]"
+	touch $@
+
 venv: $(BIN)/.installed
 
-book: venv
+lab-venv: $(BIN)/.lab-installed
+
+# every dataset the notebooks, benchmarks and command line read: fetched when missing (from the pinned
+# sources, or from $FASTSLAM_EDU_MIRROR), verified by sha256 when present; one line per dataset
+data: venv
+	$(BIN)/fastslam-edu data
+
+# re-executes only the notebooks whose code changed since the last build (jupyter-cache in _build/.jupyter_cache)
+book: data
 	$(BIN)/jupyter-book build . --path-output .
 
-# what CI runs: warnings are errors, nitpicky cross-references
-book-strict: venv
-	$(BIN)/jupyter-book build . --path-output . -W -n --keep-going
+# every notebook executed again (after a change in the package, which the cache does not see)
+book-force: data
+	rm -rf _build/.jupyter_cache
+	$(BIN)/jupyter-book build . --path-output . --all
+
+# what CI runs: every notebook executed, warnings are errors, nitpicky cross-references
+book-strict: data
+	rm -rf _build/.jupyter_cache
+	$(BIN)/jupyter-book build . --path-output . --all -W -n --keep-going
 
 test: test-package test-notebooks
 
 test-package: venv
 	$(BIN)/python -m pytest tests
 
-test-notebooks: venv
+test-notebooks: data
 	$(BIN)/python -m pytest --nbmake --nbmake-timeout=300 notebooks
 
-bench: venv
+lab: data lab-venv
+	$(BIN)/jupyter lab $(LAB_ARGS)
+
+# the built book's equations rendered by MathJax from _static, in headless Chromium with no network at all
+check-math:
+	$(BIN)/python .ci/check_math.py --chromium $(CHROMIUM) $(MATH_PAGE)
+
+bench: data
 	$(BIN)/python benchmarks/fastslam_mrclam.py
 
 clean:
