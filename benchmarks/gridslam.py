@@ -39,7 +39,7 @@ from machine import machine_info  # noqa: E402
 from fastslam_edu.datasets import data_root  # noqa: E402
 from fastslam_edu.datasets.laser import read_carmen, read_intel_json, read_relations  # noqa: E402
 from fastslam_edu.gridslam import GridSLAMParams, run_grid_slam, run_grid_slam_loop  # noqa: E402
-from fastslam_edu.relations import reference_errors, relation_errors  # noqa: E402
+from fastslam_edu.relations import reference_errors, score_trajectory  # noqa: E402
 from fastslam_edu.sim import simulate_laser_world  # noqa: E402
 
 VARIANTS = {  # name -> GridSLAMParams changes (M set separately)
@@ -100,11 +100,12 @@ def accuracy(seeds: list[int]) -> dict:
     table = []
 
     def score(name, poses_list, seconds=None):
-        rels = [relation_errors(odo.t, p, rel) for p in poses_list]
-        rms = [reference_errors(odo.t, p, ref.t, ref.poses)["rmse"] for p in poses_list]
+        scores = [score_trajectory(odo.t, p, relations=rel, reference=(ref.t, ref.poses)) for p in poses_list]
+        rels = [s["relations"] for s in scores]
+        rms = [s["reference"]["rmse_m"] for s in scores]
         row = {
             "variant": name, "seeds": len(poses_list), "relations_used": rels[0]["n_used"],
-            "relation_trans_mean_m": [r["trans_mean"] for r in rels], "relation_trans_std_m": [r["trans_std"] for r in rels],
+            "relation_trans_mean_m": [r["trans_mean_m"] for r in rels], "relation_trans_std_m": [r["trans_std_m"] for r in rels],
             "relation_rot_mean_deg": [r["rot_mean_deg"] for r in rels], "rmse_vs_gmapping_m": rms,
         }
         med = int(np.argsort(row["relation_trans_mean_m"])[len(rels) // 2])  # the median run (by relation error)

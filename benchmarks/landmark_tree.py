@@ -2,7 +2,7 @@
 
 One step = resample all M = 100 particles (indices from systematic resampling
 of random weights, fixed seed) and update 2 landmarks in every particle
-(:func:`fastslam_edu.fastslam_tree.step_cost`):
+(:func:`step_cost`):
 
 * dense arrays (the array engine): ``ParticleSet.select`` copies every
   particle's K means, covariances and flags by fancy indexing — O(MK);
@@ -28,9 +28,11 @@ Usage: python benchmarks/landmark_tree.py [--quick] [--out FILE]
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import sys
 import time
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -38,11 +40,150 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
-from fastslam_edu.fastslam_tree import crossover_k, step_cost  # noqa: E402
+from fastslam_edu.fastslam import ParticleSet  # noqa: E402
+from fastslam_edu.fastslam_tree import TreeParticleSet  # noqa: E402
+from fastslam_edu.landmark_tree import LandmarkTree, count_new_nodes, tree_depth  # noqa: E402
+from fastslam_edu.resampling import systematic  # noqa: E402
 
 K_MAIN = [100, 1_000, 10_000, 100_000]
 K_BETWEEN = [15, 200, 300, 500, 2_000, 3_000, 5_000, 20_000, 50_000]
 M = 100
+#: Measurement noise of the timed updates (range [m], bearing [rad]).
+R_STEP = np.diag([0.1**2, 0.02**2])
+
+
+def step_world(n_landmarks: int, n_particles: int, n_updates: int, seed: int):
+    """A full map of K landmarks held by M particles (dense and tree), poses, measurements, resampling indices.
+
+    Landmarks uniform in a 100 m square, every particle near the origin,
+    ``n_updates`` distinct landmarks measured (exact range and bearing from
+    the origin); indices from systematic resampling of uniform random weights.
+    Returns ``(dense, tree, indices, keys, z)``.
+    """
+    rng = np.random.default_rng(seed)
+    K, M = int(n_landmarks), int(n_particles)
+    if K < n_updates:
+        raise ValueError(f"need K >= {n_updates} landmarks, got K = {K}")
+    lm = rng.uniform(-50.0, 50.0, (K, 2))
+    sigma = np.tile(np.eye(2) * 0.01, (K, 1, 1))
+    poses = np.column_stack([rng.normal(0.0, 0.05, (M, 2)), rng.normal(0.0, 0.01, M)])
+    keys = rng.choice(K, size=n_updates, replace=False)
+    d = lm[keys]
+    z = np.column_stack([np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0])])
+    w = rng.random(M)
+    indices = systematic(w / w.sum(), rng)
+    dense = ParticleSet(
+        poses=poses, mu=np.broadcast_to(lm, (M, K, 2)).copy(), sigma=np.broadcast_to(sigma, (M, K, 2, 2)).copy(),
+        seen=np.ones((M, K), dtype=bool), logw=np.zeros(M),
+    )
+    tree = TreeParticleSet(poses=poses.copy(), trees=[LandmarkTree.from_arrays(lm, sigma)] * M, logw=np.zeros(M))
+    return dense, tree, indices, keys, z
+
+
+def step(particles: ParticleSet | TreeParticleSet, indices, keys, z) -> ParticleSet | TreeParticleSet:
+    """One filter step on either representation: resample ``indices``, then update landmarks ``keys`` with ``z``.
+
+    The same two calls on both (``select``, then ``update`` without a gate,
+    :data:`R_STEP`); returns the new set, the input is unchanged.
+    """
+    new = particles.select(indices)
+    new.update(z, keys, R_STEP)
+    return new
+
+
+def seconds_per_step(particles, indices, keys, z, n_steps: int) -> float:
+    """Mean wall time of ``n_steps`` calls of :func:`step` (each result dropped at once)."""
+    gc.collect()
+    t0 = time.perf_counter()
+    for _ in range(n_steps):
+        step(particles, indices, keys, z)
+    return (time.perf_counter() - t0) / n_steps
+
+
+def step_cost(n_landmarks: int, n_particles: int = 100, *, n_updates: int = 2, repeats: int = 5,
+              seed: int = 0, min_block_seconds: float = 0.02) -> dict:
+    """Measure one filter step (resample all M particles, update ``n_updates`` landmarks) on trees and dense arrays.
+
+    Timing, like :mod:`timeit`: a *block* runs the step ``n`` times in a row
+    (``n`` chosen so that a block lasts at least ``min_block_seconds``) and
+    gives the mean time per step; ``repeats`` blocks alternate between the two
+    representations (so a busy machine slows both alike), and the median and
+    the minimum over the blocks are reported. Memory is measured with
+    :mod:`tracemalloc` in a separate run (tracing slows Python code down).
+
+    Returns
+    -------
+    dict
+        ``K, M, n_updates, depth, repeats``;
+        ``tree_seconds, dense_seconds`` (median), ``tree_seconds_min, dense_seconds_min``,
+        ``tree_steps_per_block, dense_steps_per_block``, ``speedup`` (dense / tree, medians);
+        ``tree_bytes_peak, dense_bytes_peak``: the most allocated at once during the step;
+        ``tree_bytes_retained, dense_bytes_retained``: what the new particle set holds beyond the old one;
+        ``tree_nodes_created``: distinct nodes of the new trees that are in none of the old ones — per
+        particle the union of the ``n`` root-to-leaf paths, at most ``tree_nodes_bound``
+        :math:`= M n (\\lceil\\log_2 K\\rceil + 1)` (the first update's copy of a node on both paths,
+        the root at least, is replaced by the second's);
+        ``dense_bytes_copied``: the landmark arrays ``select`` copies (:math:`\\propto MK`).
+    """
+    if int(repeats) < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats!r}")
+    dense, tree, indices, keys, z = step_world(n_landmarks, n_particles, n_updates, seed)
+    out: dict = {"K": int(n_landmarks), "M": int(n_particles), "n_updates": int(n_updates),
+                 "depth": tree_depth(n_landmarks), "repeats": int(repeats)}
+    sets = {"tree": tree, "dense": dense}
+    block = {name: max(1, int(np.ceil(min_block_seconds / seconds_per_step(p, indices, keys, z, 1))))
+             for name, p in sets.items()}  # the first call is also a warm-up
+    times: dict[str, list[float]] = {name: [] for name in sets}
+    for _ in range(int(repeats)):
+        for name, p in sets.items():
+            times[name].append(seconds_per_step(p, indices, keys, z, block[name]))
+    for name, p in sets.items():
+        out[f"{name}_seconds"] = float(np.median(times[name]))
+        out[f"{name}_seconds_min"] = float(min(times[name]))
+        out[f"{name}_steps_per_block"] = block[name]
+        gc.collect()
+        started = not tracemalloc.is_tracing()
+        if started:
+            tracemalloc.start()
+        try:
+            before = tracemalloc.get_traced_memory()[0]
+            tracemalloc.reset_peak()
+            new = step(p, indices, keys, z)
+            current, peak = tracemalloc.get_traced_memory()
+        finally:
+            if started:
+                tracemalloc.stop()
+        out[f"{name}_bytes_peak"] = int(peak - before)
+        out[f"{name}_bytes_retained"] = int(current - before)
+        if name == "tree":
+            out["tree_nodes_created"] = count_new_nodes(new.trees, tree.trees)
+        del new
+    out["tree_nodes_bound"] = int(n_particles) * int(n_updates) * (out["depth"] + 1)
+    out["dense_bytes_copied"] = int(sum(a.nbytes for a in (dense.mu, dense.sigma, dense.seen, dense.count)))
+    out["speedup"] = out["dense_seconds"] / out["tree_seconds"]
+    return out
+
+
+def crossover_k(rows: list[dict], stat: str = "seconds") -> float | None:
+    """The K from which the tree is faster, from :func:`step_cost` results sorted by K.
+
+    Where :math:`g(K) = \\log(t_\\text{dense} / t_\\text{tree})` crosses 0 for the last time,
+    interpolated linearly in :math:`\\log K` between the two measured K around it;
+    ``rows[0]["K"]`` if the tree wins everywhere measured, None if it never
+    wins at the largest K. ``stat``: ``"seconds"`` (medians) or ``"seconds_min"`` (minima).
+    """
+    K = np.array([r["K"] for r in rows], dtype=float)
+    if len(K) == 0 or np.any(np.diff(K) <= 0):
+        raise ValueError(f"crossover_k needs step_cost rows sorted by increasing K, got K = {K.tolist()}")
+    gain = np.log(np.array([r[f"dense_{stat}"] / r[f"tree_{stat}"] for r in rows]))
+    if gain[-1] <= 0:
+        return None
+    losing = np.flatnonzero(gain <= 0)
+    if len(losing) == 0:
+        return float(K[0])
+    i = losing[-1]  # the last K where dense arrays still win; the tree wins from i + 1 on
+    a, b = np.log(K[i]), np.log(K[i + 1])
+    return float(np.exp(a + (b - a) * gain[i] / (gain[i] - gain[i + 1])))
 
 
 def repeats_for(K: int) -> int:

@@ -197,7 +197,7 @@ def cmd_gridslam(args) -> int:
 
     from .datasets.laser import read_relations
     from .gridslam import GridSLAMParams, run_grid_slam
-    from .relations import reference_errors, relation_errors
+    from .relations import score_trajectory
 
     if not (args.tolerance >= 0):
         raise ValueError(f"--tolerance must be ≥ 0, got {args.tolerance}")
@@ -226,38 +226,39 @@ def cmd_gridslam(args) -> int:
                  "origin": list(result.grid.origin)},
         "reference": None, "relations": None,
     }
-    notes = []
+    ref_path = None if reference is None else (reference.t, reference.poses)
+    est, odo = [score_trajectory(result.t, poses, relations=relations, reference=ref_path, tolerance=args.tolerance)
+                for poses in (result.estimate, result.odometry)]
     if reference is not None:
-        est = reference_errors(result.t, result.estimate, reference.t, reference.poses, tolerance=args.tolerance)
-        odo = reference_errors(result.t, result.odometry, reference.t, reference.poses, tolerance=args.tolerance)
-        summary["reference"] = {
-            "file": str(args.reference), "n_matched": est["n_matched"], "rmse_m": est["rmse"], "mean_m": est["mean"],
-            "max_m": est["max"], "odometry_rmse_m": odo["rmse"], "odometry_max_m": odo["max"],
-        }
+        summary["reference"] = {"file": str(args.reference), **est["reference"],
+                                "odometry_rmse_m": odo["reference"]["rmse_m"], "odometry_max_m": odo["reference"]["max_m"]}
     if relations is not None:
-        est = relation_errors(result.t, result.estimate, relations, tolerance=args.tolerance)
-        odo = relation_errors(result.t, result.odometry, relations, tolerance=args.tolerance)
-        ref = relation_errors(reference.t, reference.poses, relations, tolerance=args.tolerance) if reference is not None else None
+        ref = (None if reference is None else
+               score_trajectory(*ref_path, relations=relations, tolerance=args.tolerance)["relations"])
+        summary["relations"] = {"file": str(args.relations), "tolerance_s": args.tolerance,
+                                "estimate": est["relations"], "odometry": odo["relations"], "reference": ref}
+        if est["relations"]["n_used"] == 0:
+            print(f"note: no relation has both times within {args.tolerance} s of a scan: different time bases?",
+                  file=sys.stderr)
 
-        def pack(e):  # NaN (no usable relation) is written as null
-            keys = {"n_relations": "n_relations", "n_used": "n_used", "trans_mean": "trans_mean_m",
-                    "trans_std": "trans_std_m", "rot_mean_deg": "rot_mean_deg", "rot_std_deg": "rot_std_deg"}
-            return {new: (None if isinstance(e[k], float) and e[k] != e[k] else e[k]) for k, new in keys.items()}
+    _print_gridslam_summary(summary)
+    if args.json:
+        args.json.write_text(json.dumps(summary, indent=2))
+    if args.map:
+        _save_grid_map(result, args.map, f"{args.scans.name}: M = {args.particles}, seed {args.seed}")
+    return 0
 
-        summary["relations"] = {"file": str(args.relations), "tolerance_s": args.tolerance, "estimate": pack(est),
-                                "odometry": pack(odo), "reference": None if ref is None else pack(ref)}
-        if est["n_used"] == 0:
-            notes.append(f"no relation has both times within {args.tolerance} s of a scan: different time bases?")
-    for note in notes:
-        print(f"note: {note}", file=sys.stderr)
 
-    rows = [("scans", n), ("filter_seconds", result.filter_seconds), ("ms_per_scan", 1e3 * summary["seconds_per_scan"]),
-            ("resampling_steps", summary["resampling_steps"])]
+def _print_gridslam_summary(summary: dict) -> None:
+    """The lines ``fastslam-edu gridslam`` prints, ``name  value``, from its JSON summary."""
+    rows = [("scans", summary["n_scans"]), ("filter_seconds", summary["filter_seconds"]),
+            ("ms_per_scan", 1e3 * summary["seconds_per_scan"]), ("resampling_steps", summary["resampling_steps"])]
     if summary["reference"]:
         r = summary["reference"]
         rows += [("rmse_vs_reference_m", r["rmse_m"]), ("odometry_rmse_vs_reference_m", r["odometry_rmse_m"])]
     if summary["relations"]:
         r = summary["relations"]
+
         def pm(e, mean, std, digits=4):
             return "n/a" if e[mean] is None else f"{e[mean]:.{digits}f} ± {e[std]:.{digits}f}"
 
@@ -271,23 +272,23 @@ def cmd_gridslam(args) -> int:
     width = max(len(k) for k, _ in rows)
     for k, v in rows:
         print(f"{k:<{width}}  {f'{v:.4f}' if isinstance(v, float) else v}")
-    if args.json:
-        args.json.write_text(json.dumps(summary, indent=2))
-    if args.map:
-        import matplotlib
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
 
-        fig, ax = plt.subplots(figsize=(7, 6))
-        ax.imshow(result.grid.probability(), origin="lower", extent=result.grid.extent, cmap="gray_r", vmin=0, vmax=1)
-        ax.plot(result.estimate[:, 0], result.estimate[:, 1], "r-", lw=0.6, label="estimate")
-        ax.set(xlabel="x [m]", ylabel="y [m]", title=f"{args.scans.name}: M = {args.particles}, seed {args.seed}")
-        ax.legend(loc="upper right", fontsize=8)
-        fig.tight_layout()
-        fig.savefig(args.map, dpi=120)
-        plt.close(fig)
-    return 0
+def _save_grid_map(result, path: Path, title: str) -> None:
+    """The grid SLAM map with the estimated path, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 6))
+    ax.imshow(result.grid.probability(), origin="lower", extent=result.grid.extent, cmap="gray_r", vmin=0, vmax=1)
+    ax.plot(result.estimate[:, 0], result.estimate[:, 1], "r-", lw=0.6, label="estimate")
+    ax.set(xlabel="x [m]", ylabel="y [m]", title=title)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def cmd_data(args) -> int:

@@ -27,17 +27,16 @@ same function (batched distinct landmarks, a landmark seen twice in a second
 round, range-dependent :math:`R`, the robust gate), so for the same seed it
 gives the same path and map.
 
-In Python it is *slower* than the array engine for MR.CLAM's 15 landmarks —
-numpy copies a particle's 15 × 7 numbers in one C call, while the tree walks
-Python objects — and faster only once :math:`K` reaches the thousands
-(:func:`step_cost` measures both; see the chapter "Why FastSLAM is O(M log K)").
+The constants differ in kind: resampling dense arrays copies :math:`MK`
+landmark filters in a few C calls, while the tree creates and walks Python
+objects, one per node. So for a small map such as MR.CLAM's 15 landmarks the
+array engine is faster, and the tree wins only from some :math:`K` on that
+depends on the machine; ``benchmarks/landmark_tree.py`` measures both (see
+the chapter "Why FastSLAM is O(M log K)").
 """
 
 from __future__ import annotations
 
-import gc
-import time
-import tracemalloc
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -50,8 +49,7 @@ from .fastslam import (
     run_fastslam,
     update_with_measurements,
 )
-from .landmark_tree import LandmarkTree, count_new_nodes, gather, set_each, tree_depth, trees_to_arrays
-from .resampling import systematic
+from .landmark_tree import LandmarkTree, gather, set_each, trees_to_arrays
 from .weights import weights_from_log
 
 __all__ = [
@@ -59,9 +57,6 @@ __all__ = [
     "FastSLAMTreeResult",
     "update_trees_with_measurements",
     "run_fastslam_tree",
-    "step_particles",
-    "step_cost",
-    "crossover_k",
 ]
 
 
@@ -200,149 +195,3 @@ def run_fastslam_tree(
     """
     result = run_fastslam(stream, params, rng, particle_class=TreeParticleSet, **options)
     return FastSLAMTreeResult(**{f.name: getattr(result, f.name) for f in fields(result)}, trees=result.final)
-
-
-# ---------------------------------------------------------------- the cost of one step, measured
-
-
-def _step_world(n_landmarks: int, n_particles: int, n_updates: int, seed: int):
-    """A full map of K landmarks held by M particles (dense and tree), poses, measurements, resampling indices.
-
-    Landmarks uniform in a 100 m square, every particle near the origin,
-    ``n_updates`` distinct landmarks measured (exact range and bearing from
-    the origin); indices from systematic resampling of uniform random weights.
-    """
-    rng = np.random.default_rng(seed)
-    K, M = int(n_landmarks), int(n_particles)
-    if K < n_updates:
-        raise ValueError(f"need K >= {n_updates} landmarks, got K = {K}")
-    lm = rng.uniform(-50.0, 50.0, (K, 2))
-    sigma = np.tile(np.eye(2) * 0.01, (K, 1, 1))
-    poses = np.column_stack([rng.normal(0.0, 0.05, (M, 2)), rng.normal(0.0, 0.01, M)])
-    keys = rng.choice(K, size=n_updates, replace=False)
-    d = lm[keys]
-    z = np.column_stack([np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0])])
-    w = rng.random(M)
-    indices = systematic(w / w.sum(), rng)
-    dense = ParticleSet(
-        poses=poses, mu=np.broadcast_to(lm, (M, K, 2)).copy(), sigma=np.broadcast_to(sigma, (M, K, 2, 2)).copy(),
-        seen=np.ones((M, K), dtype=bool), logw=np.zeros(M),
-    )
-    tree = TreeParticleSet(poses=poses.copy(), trees=[LandmarkTree.from_arrays(lm, sigma)] * M, logw=np.zeros(M))
-    return dense, tree, indices, keys, z
-
-
-def step_particles(
-    particles: ParticleSet | TreeParticleSet, indices, keys, z, R=None
-) -> ParticleSet | TreeParticleSet:
-    """One filter step on either representation: resample ``indices``, then update landmarks ``keys`` with ``z``.
-
-    ``particles`` is a :class:`~fastslam_edu.fastslam.ParticleSet` (dense: ``select``
-    copies :math:`M \\times K` landmark filters) or a :class:`TreeParticleSet`
-    (``select`` copies M references, the update path-copies
-    :math:`M \\cdot n (\\lceil \\log_2 K\\rceil + 1)` nodes). ``indices`` (M,), ``keys`` (n,),
-    ``z`` (n, 2); ``R`` (2, 2), default ``diag(0.1², 0.02²)``. No gate. Returns the
-    new set; the input is unchanged.
-    """
-    R = np.diag([0.1**2, 0.02**2]) if R is None else R
-    new = particles.select(indices)
-    if isinstance(new, TreeParticleSet):
-        update_trees_with_measurements(new, z, keys, R)
-    else:
-        update_with_measurements(new, z, keys, R)
-    return new
-
-
-def _seconds_per_step(particles, indices, keys, z, n_steps: int) -> float:
-    """Mean wall time of ``n_steps`` calls of :func:`step_particles` (each result dropped at once)."""
-    gc.collect()
-    t0 = time.perf_counter()
-    for _ in range(n_steps):
-        step_particles(particles, indices, keys, z)
-    return (time.perf_counter() - t0) / n_steps
-
-
-def step_cost(n_landmarks: int, n_particles: int = 100, *, n_updates: int = 2, repeats: int = 5,
-              seed: int = 0, min_block_seconds: float = 0.02) -> dict:
-    """Measure one filter step (resample all M particles, update ``n_updates`` landmarks) on trees and dense arrays.
-
-    Timing, like :mod:`timeit`: a *block* runs the step ``n`` times in a row
-    (``n`` chosen so that a block lasts at least ``min_block_seconds``) and
-    gives the mean time per step; ``repeats`` blocks alternate between the two
-    representations (so a busy machine slows both alike), and the median and
-    the minimum over the blocks are reported. Memory is measured with
-    :mod:`tracemalloc` in a separate run (tracing slows Python code down).
-
-    Returns
-    -------
-    dict
-        ``K, M, n_updates, depth, repeats``;
-        ``tree_seconds, dense_seconds`` (median), ``tree_seconds_min, dense_seconds_min``,
-        ``speedup`` (dense / tree, medians);
-        ``tree_bytes_peak, dense_bytes_peak``: the most allocated at once during the step;
-        ``tree_bytes_retained, dense_bytes_retained``: what the new particle set holds beyond the old one;
-        ``tree_nodes_created``: distinct nodes of the new trees that are in none of the old ones — per
-        particle the union of the ``n`` root-to-leaf paths, at most ``tree_nodes_bound``
-        :math:`= M n (\\lceil\\log_2 K\\rceil + 1)` (the first update's copy of a node on both paths,
-        the root at least, is replaced by the second's);
-        ``dense_bytes_copied``: the landmark arrays ``select`` copies (:math:`\\propto MK`).
-    """
-    if int(repeats) < 1:
-        raise ValueError(f"repeats must be >= 1, got {repeats!r}")
-    dense, tree, indices, keys, z = _step_world(n_landmarks, n_particles, n_updates, seed)
-    out: dict = {"K": int(n_landmarks), "M": int(n_particles), "n_updates": int(n_updates),
-                 "depth": tree_depth(n_landmarks), "repeats": int(repeats)}
-    sets = {"tree": tree, "dense": dense}
-    block = {name: max(1, int(np.ceil(min_block_seconds / _seconds_per_step(p, indices, keys, z, 1))))
-             for name, p in sets.items()}  # the first call is also a warm-up
-    times: dict[str, list[float]] = {name: [] for name in sets}
-    for _ in range(int(repeats)):
-        for name, p in sets.items():
-            times[name].append(_seconds_per_step(p, indices, keys, z, block[name]))
-    for name, p in sets.items():
-        out[f"{name}_seconds"] = float(np.median(times[name]))
-        out[f"{name}_seconds_min"] = float(min(times[name]))
-        out[f"{name}_steps_per_block"] = block[name]
-        gc.collect()
-        started = not tracemalloc.is_tracing()
-        if started:
-            tracemalloc.start()
-        try:
-            before = tracemalloc.get_traced_memory()[0]
-            tracemalloc.reset_peak()
-            new = step_particles(p, indices, keys, z)
-            current, peak = tracemalloc.get_traced_memory()
-        finally:
-            if started:
-                tracemalloc.stop()
-        out[f"{name}_bytes_peak"] = int(peak - before)
-        out[f"{name}_bytes_retained"] = int(current - before)
-        if name == "tree":
-            out["tree_nodes_created"] = count_new_nodes(new.trees, tree.trees)
-        del new
-    out["tree_nodes_bound"] = int(n_particles) * int(n_updates) * (out["depth"] + 1)
-    out["dense_bytes_copied"] = int(sum(a.nbytes for a in (dense.mu, dense.sigma, dense.seen, dense.count)))
-    out["speedup"] = out["dense_seconds"] / out["tree_seconds"]
-    return out
-
-
-def crossover_k(rows: list[dict], stat: str = "seconds") -> float | None:
-    """The K from which the tree is faster, from :func:`step_cost` results sorted by K.
-
-    Where :math:`g(K) = \\log(t_\\text{dense} / t_\\text{tree})` crosses 0 for the last time,
-    interpolated linearly in :math:`\\log K` between the two measured K around it;
-    ``rows[0]["K"]`` if the tree wins everywhere measured, None if it never
-    wins at the largest K. ``stat``: ``"seconds"`` (medians) or ``"seconds_min"`` (minima).
-    """
-    K = np.array([r["K"] for r in rows], dtype=float)
-    if len(K) == 0 or np.any(np.diff(K) <= 0):
-        raise ValueError(f"crossover_k needs step_cost rows sorted by increasing K, got K = {K.tolist()}")
-    gain = np.log(np.array([r[f"dense_{stat}"] / r[f"tree_{stat}"] for r in rows]))
-    if gain[-1] <= 0:
-        return None
-    losing = np.flatnonzero(gain <= 0)
-    if len(losing) == 0:
-        return float(K[0])
-    i = losing[-1]  # the last K where dense arrays still win; the tree wins from i + 1 on
-    a, b = np.log(K[i]), np.log(K[i + 1])
-    return float(np.exp(a + (b - a) * gain[i] / (gain[i] - gain[i + 1])))

@@ -31,13 +31,15 @@ tolerance would pair a relation with a pose taken at another time.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 
 from fastslam_edu.metrics import align_se2, apply_se2
 from fastslam_edu.se2 import relative
 
-__all__ = ["DEFAULT_TOLERANCE", "match_times", "relation_errors", "reference_errors"]
+__all__ = ["DEFAULT_TOLERANCE", "match_times", "relation_errors", "reference_errors", "score_trajectory"]
 
 #: Default largest gap [s] between a relation's time stamp and the matched scan's.
 DEFAULT_TOLERANCE = 1e-3
@@ -206,3 +208,48 @@ def reference_errors(t, poses, t_ref, poses_ref, *, tolerance: float = DEFAULT_T
         "rotation_deg": float(np.degrees(angle)),
         "matched": ok,
     }
+
+
+def _number(x):
+    """A plain int or float for JSON, NaN as None."""
+    return None if isinstance(x, float) and math.isnan(x) else x
+
+
+def score_trajectory(t, poses, *, relations: pd.DataFrame | None = None, reference=None,
+                     tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """The figures of one estimated trajectory: its relation error and its error against a reference path.
+
+    :func:`relation_errors` against ``relations`` and :func:`reference_errors`
+    against ``reference``, each summed up in a few plain numbers (what the
+    command line writes to its JSON, and the tables of the grid SLAM chapter
+    and benchmark show).
+
+    Parameters
+    ----------
+    t, poses : array_like, shapes (N,), (N, 3)
+        The estimate.
+    relations : pandas.DataFrame or None
+        Relations as read by :func:`fastslam_edu.datasets.laser.read_relations`.
+    reference : (t_ref, poses_ref) or None
+        A reference trajectory, shapes (T,), (T, 3), in the same time base (e.g. GMapping's poses).
+    tolerance : float
+        Time matching tolerance [s] of both (:func:`match_times`).
+
+    Returns
+    -------
+    dict
+        ``"reference"``: ``n_matched``, ``rmse_m``, ``mean_m``, ``max_m`` (None without a reference);
+        ``"relations"``: ``n_relations``, ``n_used``, ``trans_mean_m``, ``trans_std_m``, ``rot_mean_deg``,
+        ``rot_std_deg``, the last four None when no relation is usable (None without relations).
+    """
+    scores: dict = {"reference": None, "relations": None}
+    if reference is not None:
+        t_ref, poses_ref = reference
+        e = reference_errors(t, poses, t_ref, poses_ref, tolerance=tolerance)
+        scores["reference"] = {"n_matched": e["n_matched"], "rmse_m": e["rmse"], "mean_m": e["mean"], "max_m": e["max"]}
+    if relations is not None:
+        e = relation_errors(t, poses, relations, tolerance=tolerance)
+        names = {"n_relations": "n_relations", "n_used": "n_used", "trans_mean": "trans_mean_m",
+                 "trans_std": "trans_std_m", "rot_mean_deg": "rot_mean_deg", "rot_std_deg": "rot_std_deg"}
+        scores["relations"] = {new: _number(e[old]) for old, new in names.items()}
+    return scores

@@ -30,14 +30,7 @@ from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream, groundtruth_at
 from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
 from fastslam_edu.fastslam_loop import run_fastslam_loop
-from fastslam_edu.fastslam_tree import (
-    TreeParticleSet,
-    crossover_k,
-    run_fastslam_tree,
-    step_cost,
-    step_particles,
-    update_trees_with_measurements,
-)
+from fastslam_edu.fastslam_tree import TreeParticleSet, run_fastslam_tree, update_trees_with_measurements
 from fastslam_edu.landmark_tree import count_new_nodes, count_nodes, tree_depth
 from fastslam_edu.motion import MotionNoise
 from fastslam_edu.sim import simulate_dataset
@@ -173,7 +166,8 @@ def test_select_shares_trees_and_updates_stay_private():
     assert children.trees[0] is parts.trees[0] and children.trees[4] is parts.trees[5]
     assert np.all(children.logw == 0.0)
     z = np.array([[np.hypot(4.0, 1.0) + 0.05, np.arctan2(1.0, 4.0)]])
-    moved = step_particles(children, np.arange(n), [3], z)
+    moved = children.select(np.arange(n))
+    moved.update(z, [3], np.diag([0.1**2, 0.02**2]))
     for m in range(n):  # the inputs still hold the old landmark
         np.testing.assert_array_equal(children.trees[m].get(3)[0], [4.0, 1.0])
         assert moved.trees[m].get(3).mu[0] > 4.0  # the update pulled it outwards
@@ -192,48 +186,6 @@ def test_a_particle_for_which_the_sighting_is_an_outlier_keeps_its_tree():
     assert count_new_nodes(parts.trees, old) == tree_depth(8) + 1
     np.testing.assert_array_equal(parts.trees[1].get(3).mu, [4.0, -4.0])
     assert parts.trees[0].get(3).count == 3 and parts.trees[1].get(3).count == 2
-
-
-@pytest.mark.parametrize("K", [64, 1000])
-def test_step_cost_counts(K):
-    r = step_cost(K, n_particles=30, repeats=1, min_block_seconds=0.0)
-    d = tree_depth(K)
-    assert r["depth"] == d
-    # two updates per particle: the union of two root-to-leaf paths, sharing at least the root
-    assert 30 * (d + 2) <= r["tree_nodes_created"] <= r["tree_nodes_bound"] - 30 == 30 * (2 * d + 1)
-    # dense: select copies every particle's K means (2 floats), covariances (4) and seen flags (1 byte)
-    assert r["dense_bytes_retained"] >= 30 * K * (6 * 8 + 1)
-    assert r["tree_bytes_retained"] < 30 * 2 * (d + 1) * 200 + 30 * 2 * 500  # nodes + leaf views, no K term
-    assert r["dense_bytes_copied"] >= 30 * K * (6 * 8 + 1)
-    assert r["tree_seconds"] > 0 and r["dense_seconds"] > 0
-
-
-def test_crossover_k_interpolates_in_log_k():
-    """dense ∝ K, tree constant: log(dense/tree) = log(K / 1000) is linear in log K, so the crossing is exact."""
-    rows = [{"K": K, "dense_seconds": K * 1e-6, "tree_seconds": 1e-3} for K in (10, 100, 10_000, 100_000)]
-    assert crossover_k(rows) == pytest.approx(1000.0, rel=1e-12)
-    assert crossover_k(rows[2:]) == 10_000  # the tree wins everywhere measured
-    assert crossover_k(rows[:2]) is None  # never wins
-    with pytest.raises(ValueError, match="sorted"):
-        crossover_k(rows[::-1])
-
-
-def test_step_cost_updates_every_landmark_when_k_equals_n_updates():
-    """K = n_updates = 2 is allowed: both leaves of a depth-1 tree change, 3 new nodes per particle (closed form)."""
-    r = step_cost(2, n_particles=5, n_updates=2, repeats=1, min_block_seconds=0.0)
-    assert r["depth"] == 1 and r["tree_nodes_created"] == 5 * 3
-    with pytest.raises(ValueError, match="need K >= 2"):
-        step_cost(1, n_particles=5, n_updates=2, repeats=1, min_block_seconds=0.0)
-    with pytest.raises(ValueError, match="repeats must be >= 1"):
-        step_cost(2, n_particles=5, n_updates=2, repeats=0, min_block_seconds=0.0)
-
-
-def test_crossover_k_ties_and_repeated_k():
-    """By hand: a tie at the largest K is no win (None); a K measured twice is not sorted increasing."""
-    rows = [{"K": K, "dense_seconds": d, "tree_seconds": 1.0} for K, d in ((10, 0.5), (100, 1.0))]
-    assert crossover_k(rows) is None
-    with pytest.raises(ValueError, match="sorted"):
-        crossover_k([rows[0], rows[0]])
 
 
 @pytest.mark.parametrize("bad", [{"n_particles": 0}, {"x0": [0.0, np.nan, 0.0]}, {"n_landmarks": 0}])

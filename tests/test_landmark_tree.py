@@ -9,11 +9,16 @@
 * Particles resampled from one parent share one tree; an update in one of
   them is invisible to all the others.
 * Leaves are read-only; bad keys and bad arrays raise clear ValueErrors.
+* The benchmark ``benchmarks/landmark_tree.py``: what it counts in one
+  filter step (nodes created, bytes copied) is checked against closed forms,
+  and its crossover K against hand-made timings.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -307,3 +312,58 @@ def test_bad_seen_and_which_masks_raise():
     with pytest.raises(ValueError, match="which"):
         set_each([LandmarkTree.empty(8)] * 2, 0, np.zeros((2, 2)), np.tile(np.eye(2), (2, 1, 1)),
                  which=np.array([True]))
+
+
+# ---------------------------------------------------------------- the benchmark benchmarks/landmark_tree.py
+
+
+@pytest.fixture(scope="module")
+def bench():
+    """``benchmarks/landmark_tree.py``, imported from its file (the benchmarks are scripts, not a package)."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "landmark_tree.py"
+    spec = importlib.util.spec_from_file_location("benchmark_landmark_tree", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("K", [64, 1000])
+def test_step_cost_counts(bench, K):
+    r = bench.step_cost(K, n_particles=30, repeats=1, min_block_seconds=0.0)
+    d = tree_depth(K)
+    assert r["depth"] == d
+    # two updates per particle: the union of two root-to-leaf paths, sharing at least the root
+    assert 30 * (d + 2) <= r["tree_nodes_created"] <= r["tree_nodes_bound"] - 30 == 30 * (2 * d + 1)
+    # dense: select copies every particle's K means (2 floats), covariances (4) and seen flags (1 byte)
+    assert r["dense_bytes_retained"] >= 30 * K * (6 * 8 + 1)
+    assert r["tree_bytes_retained"] < 30 * 2 * (d + 1) * 200 + 30 * 2 * 500  # nodes + leaf views, no K term
+    assert r["dense_bytes_copied"] >= 30 * K * (6 * 8 + 1)
+    assert r["tree_seconds"] > 0 and r["dense_seconds"] > 0
+
+
+def test_crossover_k_interpolates_in_log_k(bench):
+    """dense ∝ K, tree constant: log(dense/tree) = log(K / 1000) is linear in log K, so the crossing is exact."""
+    rows = [{"K": K, "dense_seconds": K * 1e-6, "tree_seconds": 1e-3} for K in (10, 100, 10_000, 100_000)]
+    assert bench.crossover_k(rows) == pytest.approx(1000.0, rel=1e-12)
+    assert bench.crossover_k(rows[2:]) == 10_000  # the tree wins everywhere measured
+    assert bench.crossover_k(rows[:2]) is None  # never wins
+    with pytest.raises(ValueError, match="sorted"):
+        bench.crossover_k(rows[::-1])
+
+
+def test_step_cost_updates_every_landmark_when_k_equals_n_updates(bench):
+    """K = n_updates = 2 is allowed: both leaves of a depth-1 tree change, 3 new nodes per particle (closed form)."""
+    r = bench.step_cost(2, n_particles=5, n_updates=2, repeats=1, min_block_seconds=0.0)
+    assert r["depth"] == 1 and r["tree_nodes_created"] == 5 * 3
+    with pytest.raises(ValueError, match="need K >= 2"):
+        bench.step_cost(1, n_particles=5, n_updates=2, repeats=1, min_block_seconds=0.0)
+    with pytest.raises(ValueError, match="repeats must be >= 1"):
+        bench.step_cost(2, n_particles=5, n_updates=2, repeats=0, min_block_seconds=0.0)
+
+
+def test_crossover_k_ties_and_repeated_k(bench):
+    """By hand: a tie at the largest K is no win (None); a K measured twice is not sorted increasing."""
+    rows = [{"K": K, "dense_seconds": d, "tree_seconds": 1.0} for K, d in ((10, 0.5), (100, 1.0))]
+    assert bench.crossover_k(rows) is None
+    with pytest.raises(ValueError, match="sorted"):
+        bench.crossover_k([rows[0], rows[0]])

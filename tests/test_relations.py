@@ -1,14 +1,15 @@
-"""Kümmerle et al.'s relation error (fastslam_edu.relations): closed forms, matrices, time matching."""
+"""Kümmerle et al.'s relation error (fastslam_edu.relations): closed forms, matrices, time matching, the summed-up scores."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from fastslam_edu.relations import match_times, reference_errors, relation_errors
+from fastslam_edu.relations import match_times, reference_errors, relation_errors, score_trajectory
 
 
 def T(p):
@@ -192,3 +193,33 @@ def test_bad_input_is_rejected():
         relation_errors(t, poses, rel.drop(columns=["yaw"]))
     with pytest.raises(ValueError, match="shape|must be"):
         relation_errors(t[:3], poses, rel)
+
+
+def test_score_trajectory_sums_up_both_errors_in_plain_numbers():
+    """Reference: relation_errors and reference_errors, called directly; the scores are their statistics renamed."""
+    rng = np.random.default_rng(9)
+    truth = random_path(rng)
+    t = 50.0 + np.arange(len(truth))
+    rel = relations_from(t, truth, [(i, i + 3) for i in range(len(truth) - 3)])
+    est = truth.copy()
+    est[:, :2] += rng.normal(0, 0.05, est[:, :2].shape)
+    s = score_trajectory(t, est, relations=rel, reference=(t, truth), tolerance=1e-3)
+    e, r = relation_errors(t, est, rel), reference_errors(t, est, t, truth)
+    assert s["relations"] == {"n_relations": e["n_relations"], "n_used": e["n_used"], "trans_mean_m": e["trans_mean"],
+                              "trans_std_m": e["trans_std"], "rot_mean_deg": e["rot_mean_deg"],
+                              "rot_std_deg": e["rot_std_deg"]}
+    assert s["reference"] == {"n_matched": r["n_matched"], "rmse_m": r["rmse"], "mean_m": r["mean"], "max_m": r["max"]}
+    assert s["relations"]["trans_mean_m"] > 0.01 and s["reference"]["rmse_m"] > 0.01
+    json.dumps(s, allow_nan=False)  # plain numbers
+    assert score_trajectory(t, est) == {"reference": None, "relations": None}
+    assert score_trajectory(t, est, relations=rel)["reference"] is None
+
+
+def test_score_trajectory_writes_none_where_no_relation_is_usable():
+    """Relations in another time base: none usable, so the statistics are None (JSON null), not NaN."""
+    poses = random_path(np.random.default_rng(10), n=8)
+    t = np.arange(8, dtype=float)
+    rel = relations_from(t - 1000.0, poses, [(0, 1), (2, 5)])
+    s = score_trajectory(t, poses, relations=rel)["relations"]
+    assert s == {"n_relations": 2, "n_used": 0, "trans_mean_m": None, "trans_std_m": None, "rot_mean_deg": None,
+                 "rot_std_deg": None}
