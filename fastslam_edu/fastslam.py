@@ -47,6 +47,7 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.stats import chi2
 
 from .datasets.log import EventStream
 from .ekf import initialise_landmark, innovation_unchecked, kalman_correction_unchecked
@@ -59,13 +60,14 @@ from .weights import weights_from_log
 MODES = ("slam", "localize", "map")
 PROPOSALS = ("motion", "fastslam2")
 
-#: χ²₂ 99.9 % quantile: −2 ln(0.001) ≈ 13.8, the textbook gate for a well-modelled sensor.
-CHI2_2DOF_999 = float(-2.0 * np.log(1e-3))
+#: χ²₂ 99.9 % quantile (upper tail 1e-3) ≈ 13.8, the textbook gate for a well-modelled sensor.
+#: For 2 degrees of freedom the tail is exp(−d²/2), so this is exactly −2 ln(1e-3).
+CHI2_2DOF_999 = float(chi2.isf(1e-3, df=2))
 
-#: χ²₂ quantile with a tail of one in a million: −2 ln(1e-6) ≈ 27.6 (for 2 degrees of
-#: freedom the tail is exp(−d²/2)). With the inflated R of the defaults it catches only
-#: gross errors (a misread barcode, a range off by metres).
-CHI2_2DOF_1E6 = float(-2.0 * np.log(1e-6))
+#: χ²₂ quantile with an upper tail of one in a million ≈ 27.6 (= −2 ln(1e-6)). With the
+#: inflated R of the defaults it catches only gross errors (a misread barcode, a range off
+#: by metres).
+CHI2_2DOF_1E6 = float(chi2.isf(1e-6, df=2))
 
 #: Longest run of odometry steps propagated at once (bounds memory: M × L × 3 floats).
 MAX_SEGMENT = 512

@@ -12,7 +12,8 @@ past given the cell turns into a sum in log-odds::
 
     l_{t,i} = l_{t−1,i} + logit p(m_i | z_t, x_t) − l_0
 
-with ``logit p = log(p / (1 − p))`` and ``l_0 = logit p(m_i) = 0`` for the
+with ``logit p = log(p / (1 − p))`` (``scipy.special.logit``; its inverse,
+``p = 1 / (1 + e^{−l})``, is ``scipy.special.expit``) and ``l_0 = logit p(m_i) = 0`` for the
 prior ``p(m_i) = 0.5``. The *inverse sensor model* ``p(m_i | z_t, x_t)`` is
 crude and effective: a cell in which a beam ends is occupied with probability
 ``p_hit`` (0.7 → ``l_occ = +0.85``), a cell the beam crosses before its end is
@@ -42,31 +43,17 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import expit
+from scipy.special import expit, logit
 
 from fastslam_edu.se2 import transform_points
 
 __all__ = [
     "OccupancyGrid",
-    "logit",
     "bresenham",
     "ray_cells",
     "scan_endpoints",
     "map_correlation",
 ]
-
-
-def logit(p) -> float | np.ndarray:
-    """Log-odds ``log(p / (1 − p))`` of a probability ``p`` in (0, 1).
-
-    ``logit(0.7) = 0.847`` (the default ``l_occ``), ``logit(0.4) = −0.405``
-    (the default ``l_free``), ``logit(0.5) = 0``.
-    """
-    p = np.asarray(p, dtype=float)
-    if not (np.isfinite(p).all() and ((p > 0) & (p < 1)).all()):
-        raise ValueError(f"logit: probabilities must lie strictly between 0 and 1, got {p.tolist()}")
-    out = np.log(p / (1.0 - p))
-    return out if out.ndim else float(out)
 
 
 def _finite(name: str, a, shape_tail: tuple[int, ...], caller: str, dtype=float) -> np.ndarray:
@@ -129,8 +116,8 @@ class OccupancyGrid:
     resolution: float
     origin: tuple[float, float]
     shape: tuple[int, int]
-    l_occ: float = math.log(0.7 / 0.3)
-    l_free: float = math.log(0.4 / 0.6)
+    l_occ: float = float(logit(0.7))
+    l_free: float = float(logit(0.4))
     l_max: float = 5.0
     log_odds: np.ndarray | None = field(default=None, repr=False)
     observed: np.ndarray | None = field(default=None, repr=False)
@@ -245,10 +232,11 @@ class OccupancyGrid:
         else:  # the half-open box [xmin, xmax) × [ymin, ymax)
             width = max(1, math.ceil((xmax - xmin) / res - 1e-9))
             height = max(1, math.ceil((ymax - ymin) / res - 1e-9))
-        if p_hit is not None:
-            kwargs["l_occ"] = logit(p_hit)
-        if p_miss is not None:
-            kwargs["l_free"] = logit(p_miss)
+        for name, p, key in (("p_hit", p_hit, "l_occ"), ("p_miss", p_miss, "l_free")):
+            if p is not None:
+                if not 0 < p < 1:
+                    raise ValueError(f"OccupancyGrid.around: {name} must lie strictly between 0 and 1, got {p}")
+                kwargs[key] = float(logit(p))
         return cls(resolution=res, origin=(xmin, ymin), shape=(height, width), **kwargs)
 
     def copy(self) -> OccupancyGrid:
@@ -318,6 +306,8 @@ class OccupancyGrid:
         *unknown* if no update ever touched it (``observed`` is False, whatever
         the threshold), and *free* otherwise (observed and ``p ≤ threshold``).
         """
+        if not 0 < threshold < 1:
+            raise ValueError(f"OccupancyGrid.binary: threshold must lie strictly between 0 and 1, got {threshold}")
         lt = logit(threshold)
         out = np.where(self.observed, 0, -1).astype(np.int8)
         out[self.observed & (self.log_odds > lt)] = 1

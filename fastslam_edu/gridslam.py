@@ -9,9 +9,10 @@ The write-up (a course project on THOR humanoid LiDAR) runs, for every scan
    ``w^{[i]} ∝ w^{[i]} · exp(c^{[i]} / T)``, ``c^{[i]} = Σ_{b} m(cell(y_b^{[i]}))``:
    the number of beam endpoints ``y_b^{[i]}`` (scan ``z_k`` projected from
    ``x_k^{[i]}``) that land on cells the map holds occupied
-   (:func:`correlation`, :func:`log_weight_update`). The write-up's rule is
-   ``T = 1``; a *temperature* ``T > 1`` tempers it (see below).
-3. **Normalise** the weights.
+   (:func:`correlation`). The write-up's rule is ``T = 1``; a *temperature*
+   ``T > 1`` tempers it (see below).
+3. **Normalise** the weights, in log space
+   (:func:`fastslam_edu.weights.normalise_log_weights`).
 4. **Map**: add the scan, seen from the **best** particle (largest weight),
    to one shared log-odds grid (:class:`fastslam_edu.grid.OccupancyGrid`).
 5. **Resample** (systematic) — the write-up does it every step; here only when
@@ -79,13 +80,14 @@ import time
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
+from scipy.special import logit
 
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.laser import LaserLog, odometry_increments
-from fastslam_edu.grid import OccupancyGrid, bresenham, logit, scan_endpoints
+from fastslam_edu.grid import OccupancyGrid, bresenham, scan_endpoints
 from fastslam_edu.resampling import get_resampler
 from fastslam_edu.se2 import compose, compose_increments, transform_points
-from fastslam_edu.weights import effective_sample_size
+from fastslam_edu.weights import effective_sample_size, normalise_log_weights
 
 __all__ = [
     "GridSLAMParams",
@@ -97,7 +99,6 @@ __all__ = [
     "endpoint_cells",
     "correlation_kernel",
     "correlation",
-    "log_weight_update",
     "ray_cells_batch",
     "update_maps",
     "add_scans",
@@ -206,7 +207,9 @@ class GridSLAMParams:
             raise ValueError(f"GridSLAMParams: resample_threshold must lie in [0, 1], got {self.resample_threshold}")
         get_resampler(self.resampler)  # raises on an unknown name
         for name in ("p_hit", "p_miss"):
-            logit(getattr(self, name))  # raises outside (0, 1)
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0 < v < 1):
+                raise ValueError(f"GridSLAMParams: {name} must lie strictly between 0 and 1, got {v!r}")
         if not (self.p_hit > 0.5 > self.p_miss):
             raise ValueError(f"GridSLAMParams: need p_hit > 0.5 > p_miss, got {self.p_hit}, {self.p_miss}")
         if self.max_range is not None and not (math.isfinite(self.max_range) and self.max_range > self.min_range):
@@ -495,21 +498,6 @@ def correlation(log_odds, rows, cols, threshold: float = 0.0, kernel=None) -> np
     if kernel is None:
         return occupied[..., 0].sum(axis=-1)
     return (occupied * weights).max(axis=-1).sum(axis=-1)
-
-
-def log_weight_update(log_weights, scores, temperature: float = 1.0) -> np.ndarray:
-    """``log w^{[i]} ← log w^{[i]} + c^{[i]} / T``, then normalised (``Σ w = 1``).
-
-    ``T = 1`` is the write-up's ``w ∝ w · exp(c)``.
-
-    Returns
-    -------
-    ndarray, shape (M,)
-        Normalised log-weights (``log Σ exp = 0``).
-    """
-    a = np.asarray(log_weights, dtype=float) + np.asarray(scores, dtype=float) / temperature
-    a = a - a.max()
-    return a - np.log(np.exp(a).sum())
 
 
 # --------------------------------------------------------------------------- map updates
@@ -868,7 +856,7 @@ def run_grid_slam(
         ends = scan_endpoints(particles, r, a, off)  # (M, B, 2)
         rows, cols = endpoint_cells(grid, ends)
         scores = correlation(current, rows, cols, thr, kernel)  # 2. map correlation
-        logw = log_weight_update(logw, scores, params.temperature)  # 2.–3. weigh, normalise
+        logw = normalise_log_weights(logw + scores / params.temperature)  # 2.–3. weigh, normalise
         w = np.exp(logw)
         best = int(np.argmax(logw))
         hist[k], parents[k] = particles, parent_idx

@@ -16,7 +16,8 @@ Measurement noise (:func:`measurement_residuals`, :func:`measurement_noise`)
    (:func:`fastslam_edu.measurement.range_bearing`).
 2. Residual ``e_j = (r_j − r̂_j, wrap(φ_j − φ̂_j))``.
 3. Robust spread: ``σ = 1.4826 · median_j |e_j − median e|`` (the MAD,
-   scaled so that it equals the standard deviation for Gaussian data; a few
+   scaled by ``1.4826 = 1/Φ⁻¹(3/4)`` so that it equals the standard deviation
+   for Gaussian data, :func:`robust_std`; a few
    per cent of gross outliers barely move it, while they would dominate the
    sample standard deviation). Biases: the median of all residuals and the
    mean of the inliers. Outliers: ``|r_j − r̂_j| > 0.5 m``.
@@ -61,15 +62,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.stats import median_abs_deviation
 
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.log import Dataset, RobotLog
 from fastslam_edu.measurement import landmark_from_measurement, range_bearing
 from fastslam_edu.metrics import interpolate_poses
 from fastslam_edu.motion import MotionNoise, move_segment
-
-#: Scale that turns the median absolute deviation into a standard deviation for Gaussian data: 1/Φ⁻¹(3/4).
-MAD_TO_STD = 1.4826
 
 #: Default largest groundtruth gap [s] to interpolate over (1 Hz data have 1 s gaps; a removed glitch makes 2 s).
 MAX_GAP = 1.5
@@ -84,7 +83,6 @@ OUTLIER_THRESHOLD = 0.5
 WINDOWS = (1.0, 2.0, 4.0)
 
 __all__ = [
-    "MAD_TO_STD",
     "MeasurementNoise",
     "RandomWalkFit",
     "dead_reckoning",
@@ -111,6 +109,11 @@ __all__ = [
 def robust_std(e) -> float:
     """Robust standard deviation ``σ̂ = 1.4826 · median |e − median e|`` (scaled MAD).
 
+    ``scipy.stats.median_abs_deviation(e, scale="normal")`` (the factor is
+    ``1/Φ⁻¹(3/4) = 1.482602…``), after checking that ``e`` is non-empty and
+    finite, with an error that says which (SciPy returns NaN for an empty
+    input or one with a NaN in it).
+
     For Gaussian data it estimates the standard deviation (relative standard
     error ≈ 0.78/√n, against 0.71/√n for the sample std); each gross outlier
     moves it by about as much as one ordinary point, not by its size.
@@ -124,8 +127,7 @@ def robust_std(e) -> float:
     -------
     float
     """
-    e = _finite_1d(e, "robust_std")
-    return float(MAD_TO_STD * np.median(np.abs(e - np.median(e))))
+    return float(median_abs_deviation(_finite_1d(e, "robust_std"), scale="normal"))
 
 
 def _finite_1d(e, caller: str) -> np.ndarray:

@@ -31,6 +31,11 @@ so the largest exponent is ``e^0 = 1``):
 
     \\log \\sum_k e^{ℓ^{[k]}} = a^* + \\log \\sum_k e^{ℓ^{[k]} - a^*}.
 
+SciPy has both: ``scipy.special.logsumexp`` (the left side) and
+``scipy.special.log_softmax`` (``ℓ - logsumexp(ℓ)``, shifted as above).
+:func:`normalise_log_weights` is ``log_softmax`` with the checks a filter
+needs (NaN, ``+inf``, no particles, every weight zero).
+
 Degenerate case: if every ``ℓ^{[m]} = -∞`` (every particle has likelihood
 exactly zero, e.g. a gate rejected the measurement for all of them), the
 weights are ``0/0``: :func:`normalise_log_weights` returns uniform weights by
@@ -43,9 +48,9 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
+from scipy.special import log_softmax, logsumexp
 
 __all__ = [
-    "log_sum_exp",
     "is_degenerate",
     "normalise_log_weights",
     "weights_from_log",
@@ -91,50 +96,6 @@ def _as_log_weights(logw, name: str = "logw") -> np.ndarray:
     return a
 
 
-def log_sum_exp(a, axis: int = -1) -> np.ndarray | float:
-    """``log Σ_k exp(a_k)`` along ``axis``, without overflow or underflow.
-
-    .. math::
-
-        \\mathrm{LSE}(a) = a^* + \\log \\sum_k e^{a_k - a^*}, \\qquad a^* = \\max_k a_k.
-
-    After the shift the largest term is ``e^0 = 1``, so the sum lies in
-    ``[1, n]`` and its log is exact to round-off, whatever the magnitude of
-    ``a`` (``LSE([-1000, -1000]) = -1000 + log 2``, where the naive formula
-    gives ``log 0 = -inf``).
-
-    Parameters
-    ----------
-    a : array_like, any shape
-        Log-values (e.g. log-weights). ``-inf`` entries are allowed and count
-        as ``exp(-inf) = 0``; ``+inf`` gives ``+inf``.
-    axis : int, default -1
-        Axis to reduce.
-
-    Returns
-    -------
-    float or ndarray
-        ``a`` with ``axis`` removed. ``-inf`` where every entry is ``-inf``
-        (or the axis is empty), without a RuntimeWarning.
-
-    Raises
-    ------
-    ValueError
-        If ``a`` contains NaN.
-    """
-    a = np.asarray(a, dtype=float)
-    _reject_nan(a, "a")
-    a_max = np.max(a, axis=axis, keepdims=True, initial=-np.inf)
-    # Shift by the max where it is finite; an all -inf (or +inf) slice is left
-    # unshifted, which avoids the undefined (-inf) - (-inf).
-    shift = np.where(np.isfinite(a_max), a_max, 0.0)
-    s = np.sum(np.exp(a - shift), axis=axis, keepdims=True)
-    log_s = np.full_like(s, -np.inf)
-    np.log(s, out=log_s, where=s > 0.0)  # log 0 = -inf, written without a warning
-    out = np.squeeze(log_s + shift, axis=axis)
-    return out if out.ndim else float(out)
-
-
 def is_degenerate(logw) -> np.ndarray | bool:
     """True where every log-weight is ``-inf`` (all likelihoods are zero).
 
@@ -153,7 +114,9 @@ def is_degenerate(logw) -> np.ndarray | bool:
 
 
 def normalise_log_weights(logw, *, on_degenerate: OnDegenerate = "uniform") -> np.ndarray:
-    """Normalised log-weights ``ℓ̃ = ℓ - LSE(ℓ)``, so that ``Σ_m exp(ℓ̃^{[m]}) = 1``.
+    """Normalised log-weights ``ℓ̃ = ℓ - log Σ_k exp(ℓ^{[k]})``, so that ``Σ_m exp(ℓ̃^{[m]}) = 1``.
+
+    ``scipy.special.log_softmax`` along the last axis, after checking the input.
 
     Parameters
     ----------
@@ -201,8 +164,8 @@ def normalise_log_weights(logw, *, on_degenerate: OnDegenerate = "uniform") -> n
                 f"likelihood underflowed or is exactly zero), so the weights are 0/0; "
                 f"logw = {_summary(a)}"
             )
-    total = np.expand_dims(log_sum_exp(np.where(degenerate, 0.0, a), axis=-1), -1)
-    return np.where(degenerate, -np.log(m), a - total)
+    # a degenerate row becomes all zeros, whose log-softmax is -log M (uniform)
+    return log_softmax(np.where(degenerate, 0.0, a), axis=-1)
 
 
 def weights_from_log(logw, *, on_degenerate: OnDegenerate = "uniform") -> np.ndarray:
@@ -283,7 +246,9 @@ def effective_sample_size_from_log(logw, *, on_degenerate: OnDegenerate = "unifo
 
         N_\\mathrm{eff} = \\frac{(\\sum_m w^{[m]})^2}{\\sum_m (w^{[m]})^2}
                         = \\exp\\big(2\\,\\mathrm{LSE}(ℓ) - \\mathrm{LSE}(2ℓ)\\big)
-                        = \\exp\\big(-\\mathrm{LSE}(2\\tilde ℓ)\\big).
+                        = \\exp\\big(-\\mathrm{LSE}(2\\tilde ℓ)\\big),
+
+    with ``LSE = scipy.special.logsumexp``.
 
     Parameters
     ----------
@@ -298,5 +263,5 @@ def effective_sample_size_from_log(logw, *, on_degenerate: OnDegenerate = "unifo
         ``N_eff`` in ``[1, M]``.
     """
     ell = normalise_log_weights(logw, on_degenerate=on_degenerate)
-    out = np.exp(-np.asarray(log_sum_exp(2.0 * ell, axis=-1)))
+    out = np.exp(-logsumexp(2.0 * ell, axis=-1))
     return out if out.ndim else float(out)

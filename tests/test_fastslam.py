@@ -347,6 +347,13 @@ def test_same_seed_same_result_different_seed_different(sim2):
 # --------------------------------------------------------------------------- the outlier gate
 
 
+def test_gate_constants_are_the_chi2_tail_points_in_closed_form():
+    """Reference: for 2 degrees of freedom P(d² > g) = exp(−g/2), so the point with tail q is −2 ln q."""
+    assert fs.CHI2_2DOF_999 == pytest.approx(-2.0 * np.log(1e-3), rel=1e-15)
+    assert fs.CHI2_2DOF_1E6 == pytest.approx(-2.0 * np.log(1e-6), rel=1e-15)
+    assert FastSLAMParams().gate_chi2 == fs.CHI2_2DOF_1E6
+
+
 def test_gate_rejects_the_injected_outliers():
     """outlier_prob = 0.05: a range + U(0.5, 2) m, i.e. > 7σ of Q's range part.
 

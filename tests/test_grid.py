@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from fastslam_edu.grid import OccupancyGrid, bresenham, logit, map_correlation, ray_cells, scan_endpoints
+from fastslam_edu.grid import OccupancyGrid, bresenham, map_correlation, ray_cells, scan_endpoints
 
 L_OCC = math.log(0.7 / 0.3)
 L_FREE = math.log(0.4 / 0.6)
@@ -21,14 +21,20 @@ def unit_grid(h=5, w=10, **kw):
 # --------------------------------------------------------------------------- log-odds and the update
 
 
-def test_logit_values_of_the_default_inverse_sensor_model():
-    assert logit(0.7) == pytest.approx(0.8472978603872037)
-    assert logit(0.4) == pytest.approx(-0.4054651081081644)
-    assert logit(0.5) == 0.0
+def test_inverse_sensor_model_is_the_log_odds_of_the_probabilities():
+    """Reference: l = ln(p / (1 − p)) by hand: ln(7/3), ln(2/3) (defaults), ln 9, ln(3/7)."""
     g = unit_grid()
-    assert g.l_occ == pytest.approx(L_OCC) and g.l_free == pytest.approx(L_FREE)
-    with pytest.raises(ValueError, match="between 0 and 1"):
-        logit(1.0)
+    assert g.l_occ == pytest.approx(0.8472978603872037, rel=1e-14)
+    assert g.l_free == pytest.approx(-0.4054651081081644, rel=1e-14)
+    g = OccupancyGrid.around(2.0, 0.1, p_hit=0.9, p_miss=0.3)
+    assert g.l_occ == pytest.approx(math.log(9), rel=1e-14) and g.l_free == pytest.approx(math.log(3 / 7), rel=1e-14)
+    for bad in (0.0, 1.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="p_hit must lie strictly between 0 and 1"):
+            OccupancyGrid.around(2.0, 0.1, p_hit=bad)
+        with pytest.raises(ValueError, match="p_miss must lie strictly between 0 and 1"):
+            OccupancyGrid.around(2.0, 0.1, p_miss=bad)
+        with pytest.raises(ValueError, match="threshold must lie strictly between 0 and 1"):
+            g.binary(bad)
 
 
 def test_single_ray_along_a_row_by_hand():

@@ -18,7 +18,6 @@ from fastslam_edu.gridslam import (
     endpoint_cells,
     hit_field,
     increment_noise_std,
-    log_weight_update,
     ray_cells_batch,
     run_grid_slam,
     run_grid_slam_loop,
@@ -113,17 +112,6 @@ def test_graded_correlation_by_brute_force():
     r0, c0 = int(rows.min()) - 1, int(cols.min()) - 2
     field = hit_field(g.log_odds, 0.0, (off, wts), (r0, int(rows.max()) + 3, c0, int(cols.max()) + 1))
     np.testing.assert_allclose(field[rows - r0, cols - c0].sum(axis=-1), got, atol=1e-12)
-
-
-def test_log_weight_update_is_the_softmax_of_the_scores():
-    c = np.array([3.0, 1.0, 0.0, 3.0])
-    lw = log_weight_update(np.full(4, -math.log(4)), c, temperature=1.0)
-    np.testing.assert_allclose(np.exp(lw), np.exp(c) / np.exp(c).sum())
-    lw = log_weight_update(np.zeros(4), c, temperature=2.0)
-    np.testing.assert_allclose(np.exp(lw), np.exp(c / 2) / np.exp(c / 2).sum())
-    lw = log_weight_update(np.zeros(3), np.array([1e4, 1e4 - 1, 0.0]))  # exp(1e4) would overflow
-    assert np.all(np.isfinite(lw)) and np.exp(lw).sum() == pytest.approx(1.0)
-    assert np.exp(lw[0] - lw[1]) == pytest.approx(math.e)
 
 
 # --------------------------------------------------------------------------- map updates
@@ -234,10 +222,10 @@ def test_rao_blackwellised_variant_runs_and_keeps_a_map_per_particle(world):
     np.testing.assert_allclose(g.log_odds, res.grid.log_odds, atol=1e-4)
 
 
+@pytest.mark.parametrize("temp", [1.0, 2.5], ids=["writeup", "tempered"])
 @pytest.mark.parametrize("runner", [run_grid_slam, run_grid_slam_loop])
-def test_temperature_divides_the_scores_in_the_first_weights(world, runner):
+def test_temperature_divides_the_scores_in_the_first_weights(world, runner, temp):
     """Reference: scan 1 re-scored by the grid module on the map of scan 0 from x0; closed-form softmax of c / T."""
-    temp = 2.5
     p = GridSLAMParams(n_particles=6, hit_sigma=0.0, margin=1.0, resample_threshold=0.0, match_iterations=0,
                        temperature=temp)
     res = runner(world.log, p, np.random.default_rng(5), n_scans=2)
@@ -249,6 +237,7 @@ def test_temperature_divides_the_scores_in_the_first_weights(world, runner):
     c = map_correlation(g, scan_endpoints(res.particles, r, a))
     assert c.max() - c.min() >= 3  # the particles score differently, so T matters
     np.testing.assert_allclose(res.log_weights, c / temp - logsumexp(c / temp), atol=1e-9)
+    np.testing.assert_allclose(np.exp(res.log_weights), np.exp(c / temp) / np.exp(c / temp).sum(), rtol=1e-9)
 
 
 def test_writeup_threshold_does_not_resample_equal_weights(world):
@@ -298,6 +287,10 @@ def test_bad_input_is_rejected(world):
             GridSLAMParams(resample_threshold=bad)
     with pytest.raises(ValueError, match="max_range"):
         GridSLAMParams(min_range=0.5, max_range=0.5)  # an empty window of ranges
+    for name in ("p_hit", "p_miss"):
+        for bad in (0.0, 1.0, float("nan")):
+            with pytest.raises(ValueError, match=f"{name} must lie strictly between 0 and 1"):
+                GridSLAMParams(**{name: bad})
     one = dataclasses.replace(world.log, t=world.log.t[:1], ranges=world.log.ranges[:1], poses=world.log.poses[:1],
                               odometry=None if world.log.odometry is None else world.log.odometry[:1],
                               last_odom=None if world.log.last_odom is None else world.log.last_odom[:1])

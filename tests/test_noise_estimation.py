@@ -24,7 +24,6 @@ from fastslam_edu.datasets.events import clean_1hz_table
 from fastslam_edu.datasets.log import Dataset, RobotLog
 from fastslam_edu.motion import MotionNoise, propagate
 from fastslam_edu.noise_estimation import (
-    MAD_TO_STD,
     dead_reckoning,
     estimate_noise,
     fit_random_walk,
@@ -74,7 +73,9 @@ def test_robust_std_is_the_std_for_gaussians_and_ignores_outliers():
     e = rng.normal(0.3, 2.0, 40_000)
     # relative standard error of the MAD estimate ≈ 0.78/√n = 0.4 %
     assert robust_std(e) == pytest.approx(2.0, rel=0.02)
-    assert MAD_TO_STD == pytest.approx(1 / norm.ppf(0.75), rel=1e-4)
+    # the MAD about the median, scaled by 1/Φ⁻¹(3/4), by hand
+    assert robust_std(e) == pytest.approx(np.median(np.abs(e - np.median(e))) / norm.ppf(0.75), rel=1e-14)
+    assert robust_std([1.0, 2.0, 4.0]) == pytest.approx(1.0 / norm.ppf(0.75), rel=1e-14)  # |e − 2| = 1, 0, 2
     e[:2000] = 1e3  # 5 % gross outliers
     assert np.std(e) > 100
     # a one-sided 5 % contamination moves the MAD by ≈ 1.4826·(Φ⁻¹(0.75+0.025)−Φ⁻¹(0.75))… < 10 %
@@ -86,6 +87,8 @@ def test_robust_std_rejects_empty_and_nan():
         robust_std([])
     with pytest.raises(ValueError, match="NaN"):
         robust_std([1.0, np.nan])
+    with pytest.raises(ValueError, match="inf"):
+        robust_std([1.0, 2.0, np.inf])
 
 
 # --------------------------------------------------------------------------- groundtruth
