@@ -346,28 +346,82 @@ def _levenberg_marquardt(problem: _Problem, v, active, *, huber, max_iterations,
     return v, it, cost
 
 
-def _inverse_block(lu, n: int, cols: np.ndarray) -> np.ndarray:
-    """Rows and columns ``cols`` of the inverse of the factorised ``n × n`` matrix ``lu``."""
-    E = np.zeros((n, len(cols)))
-    E[cols, np.arange(len(cols))] = 1.0
-    return lu.solve(E)[cols]
+def _pose_blocks(P, n_poses: int):
+    """The diagonal blocks ``P_kk`` (N, 3, 3) and the blocks above them ``P_k,k+1`` (N-1, 3, 3) of the
+    block-tridiagonal sparse matrix ``P`` (3N × 3N)."""
+    P = P.tocoo()
+    P.sum_duplicates()
+    k, i, j, data = P.row // 3, P.row % 3, P.col % 3, P.data
+    assert np.all(np.abs(P.col // 3 - k) <= 1), "the poses' normal matrix is block-tridiagonal"
+    diag, above = P.col // 3 == k, P.col // 3 == k + 1
+    D, C = np.zeros((n_poses, 3, 3)), np.zeros((n_poses - 1, 3, 3))
+    D[k[diag], i[diag], j[diag]] = data[diag]
+    C[k[above], i[above], j[above]] = data[above]
+    return D, C
+
+
+def block_tridiagonal_inverse_diagonal(D: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """The diagonal blocks of :math:`P^{-1}` for a symmetric positive definite block-tridiagonal :math:`P`.
+
+    ``D`` (N, d, d) are the diagonal blocks :math:`P_{kk}`, ``C`` (N-1, d, d) the blocks above them,
+    :math:`C_k = P_{k,k+1}`. Block elimination forwards, then a backward pass:
+
+    .. math::
+
+        \\Pi_0 = D_0, \\quad \\Pi_k = D_k - C_{k-1}^\\top \\Pi_{k-1}^{-1} C_{k-1}; \\qquad
+        \\Sigma_{N-1} = \\Pi_{N-1}^{-1}, \\quad
+        \\Sigma_k = \\Pi_k^{-1} + G_k \\Sigma_{k+1} G_k^\\top, \\; G_k = \\Pi_k^{-1} C_k.
+
+    Read as a Gaussian with information matrix :math:`P`: once blocks 0 … k−1 are eliminated, block k
+    given block k+1 has covariance :math:`\\Pi_k^{-1}` and mean :math:`-G_k x_{k+1}` (plus a constant),
+    and the backward pass is the law of total covariance — the Rauch–Tung–Striebel smoother's.
+    :math:`O(N d^3)`, against :math:`N d` sparse solves for the same blocks. Returns (N, d, d).
+    """
+    N = len(D)
+    Pi = np.empty_like(D)
+    Pi[0] = D[0]
+    for k in range(1, N):
+        # a solve, not Π⁻¹ times C: the subtraction cancels digits, and an explicit inverse loses more of them
+        # (pose σ 6e-8 off in relative terms on a 2850-keyframe log, against 1e-10 with the solve)
+        Pi[k] = D[k] - C[k - 1].T @ np.linalg.solve(Pi[k - 1], C[k - 1])
+    Sigma = np.empty_like(D)
+    Sigma[-1] = np.linalg.inv(Pi[-1])
+    for k in range(N - 2, -1, -1):
+        G = np.linalg.solve(Pi[k], C[k])
+        Sigma[k] = np.linalg.inv(Pi[k]) + G @ Sigma[k + 1] @ G.T
+    return Sigma
 
 
 def _laplace(problem: _Problem, v, active, with_poses=True):
-    """Standard deviations of the poses and covariances of the landmarks: blocks of ``(JᵀJ)⁻¹``."""
+    """Standard deviations of the poses and covariances of the landmarks: blocks of :math:`(J^\\top J)^{-1}`.
+
+    With the poses first, :math:`J^\\top J = \\begin{pmatrix} P & B \\\\ B^\\top & M \\end{pmatrix}`:
+    :math:`P` (3N × 3N) is block-tridiagonal (the prior and the odometry factors link consecutive
+    keyframes only), :math:`B` links the poses to the landmarks they saw, :math:`M` (2K × 2K) holds
+    the landmarks' own blocks. Eliminating the poses (the Schur complement),
+
+    .. math::
+
+        \\Sigma_{mm} = (M - B^\\top X)^{-1}, \\qquad
+        \\Sigma_{pp} = P^{-1} + X \\Sigma_{mm} X^\\top, \\qquad X = P^{-1} B,
+
+    with the diagonal blocks of :math:`P^{-1}` from :func:`block_tridiagonal_inverse_diagonal`.
+    (Not by solving :math:`J^\\top J` for thousands of unit vectors: that took 10–20 s on a log of
+    3000 keyframes, and many times longer on a machine whose other core was busy, where each of the
+    sparse solver's many small multi-threaded BLAS calls waits for a thread that cannot run.)
+    """
     _, J, _ = problem.evaluate(v, active)
-    lu = splu((J.T @ J).tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0)
-    n, N = len(v), problem.n_poses
-    K = (n - 3 * N) // 2
-    block = _inverse_block(lu, n, 3 * N + np.arange(2 * K)).reshape(K, 2, K, 2)
-    cov_lm = block[np.arange(K), :, np.arange(K), :]  # the 2×2 blocks on the diagonal
+    A = (J.T @ J).tocsc()
+    N, p = problem.n_poses, 3 * problem.n_poses
+    P, B, M = A[:p, :p], A[:p, p:], A[p:, p:].toarray()
+    X = splu(P, permc_spec=ORDERING, diag_pivot_thresh=0.0).solve(B.toarray())  # (3N, 2K), P banded: no fill
+    cov = np.linalg.inv(M - B.T @ X)
+    K = len(cov) // 2
+    cov_lm = cov.reshape(K, 2, K, 2)[np.arange(K), :, np.arange(K), :]  # the 2×2 blocks on the diagonal
     if not with_poses:
         return np.full((N, 3), np.nan), cov_lm
-    # pose variances: the diagonal of the inverse, in chunks of columns to bound memory
-    var = np.empty(3 * N)
-    for start in range(0, 3 * N, 600):
-        cols = np.arange(start, min(start + 600, 3 * N))
-        var[cols] = np.diag(_inverse_block(lu, n, cols))
+    var = np.diagonal(block_tridiagonal_inverse_diagonal(*_pose_blocks(P, N)), axis1=1, axis2=2).ravel()
+    var = var + np.einsum("ij,jk,ik->i", X, cov, X)  # the diagonal of X Σ_mm Xᵀ
     return np.sqrt(np.maximum(var, 0.0)).reshape(N, 3), cov_lm
 
 
@@ -412,7 +466,8 @@ def smooth(
     max_gap_s : float
         Keyframe spacing where there are no sightings (:func:`keyframe_steps`).
     pose_std : bool
-        Compute the poses' standard deviations (N sparse solves; the landmarks' covariances are always computed).
+        Compute the poses' standard deviations (one backward pass over the keyframes, :func:`_laplace`;
+        the landmarks' covariances are always computed).
     """
     started = time.perf_counter()
     params = FastSLAMParams() if params is None else params

@@ -16,6 +16,7 @@ from fastslam_edu.motion import MotionNoise, move_segment
 from fastslam_edu.se2 import relative
 from fastslam_edu.smoother import (
     PRIOR_STD,
+    block_tridiagonal_inverse_diagonal,
     dead_reckoning,
     keyframe_steps,
     measurement_residuals,
@@ -243,6 +244,48 @@ def test_pose_standard_deviations():
     np.testing.assert_allclose(result.pose_std[0], PRIOR_STD, rtol=0.01)
     assert np.all(np.isfinite(result.pose_std)) and np.all(result.pose_std > 0)
     assert np.all(np.isnan(smooth(stream, _params()).pose_std))  # not asked for
+
+
+def test_block_tridiagonal_inverse_diagonal_matches_dense_inverse():
+    rng = np.random.default_rng(3)
+    N, d = 7, 3
+    blocks = rng.normal(size=(N, d, d))
+    P = np.zeros((N * d, N * d))
+    for k in range(N):  # a random symmetric block-tridiagonal matrix
+        P[k * d:(k + 1) * d, k * d:(k + 1) * d] = blocks[k] @ blocks[k].T + np.eye(d)
+        if k:
+            a = rng.normal(size=(d, d)) * 0.5
+            P[k * d:(k + 1) * d, (k - 1) * d:k * d] = a
+            P[(k - 1) * d:k * d, k * d:(k + 1) * d] = a.T
+    P += np.eye(N * d) * (np.abs(P).sum(axis=1).max())  # diagonally dominant: positive definite
+    D = np.stack([P[k * d:(k + 1) * d, k * d:(k + 1) * d] for k in range(N)])
+    C = np.stack([P[k * d:(k + 1) * d, (k + 1) * d:(k + 2) * d] for k in range(N - 1)])
+    inverse = np.linalg.inv(P)
+    expected = np.stack([inverse[k * d:(k + 1) * d, k * d:(k + 1) * d] for k in range(N)])
+    np.testing.assert_allclose(block_tridiagonal_inverse_diagonal(D, C), expected, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(block_tridiagonal_inverse_diagonal(D[:1], C[:0]), np.linalg.inv(D[:1]))
+
+
+def test_laplace_blocks_match_the_dense_inverse_of_the_normal_matrix(monkeypatch):
+    """The poses' σ and the landmarks' covariances are the diagonal blocks of (JᵀJ)⁻¹ at the solution."""
+    import fastslam_edu.smoother as smoother
+
+    _, _, stream = simulate(16, duration=20.0)
+    seen, laplace = {}, smoother._laplace
+
+    def spy(problem, v, active, with_poses=True):
+        J = problem.evaluate(v, active)[1]
+        seen["inverse"], seen["n_poses"] = np.linalg.inv((J.T @ J).toarray()), problem.n_poses
+        return laplace(problem, v, active, with_poses)
+
+    monkeypatch.setattr(smoother, "_laplace", spy)
+    result = smooth(stream, _params(), pose_std=True)
+    inverse, p = seen["inverse"], 3 * seen["n_poses"]
+    np.testing.assert_allclose(result.pose_std.ravel(), np.sqrt(np.diag(inverse)[:p]), rtol=1e-9)
+    K = (len(inverse) - p) // 2
+    assert K == result.observed.sum() > 0
+    landmarks = inverse[p:, p:].reshape(K, 2, K, 2)[np.arange(K), :, np.arange(K), :]
+    np.testing.assert_allclose(result.landmarks_cov[result.observed], landmarks, rtol=1e-9)
 
 
 def _stationary_stream(n_steps, sightings, dt=0.1, n_landmarks=2):
