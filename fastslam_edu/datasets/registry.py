@@ -203,9 +203,7 @@ def file_state(path: Path, entry: DataFile) -> str:
     """``'intact'`` if ``path`` holds the registered size and sha256, else ``'missing'`` or ``'altered'``. Reads only."""
     if not path.is_file():
         return "missing"
-    if path.stat().st_size != entry.size or sha256_of_file(path) != entry.sha256:
-        return "altered"
-    return "intact"
+    return "intact" if landed_mismatch(path, entry) is None else "altered"
 
 
 def resolve_root(root: str | Path | None) -> Path:
@@ -301,8 +299,8 @@ def fetch_file(entry: DataFile, root: Path, *, mirror: str | None = None, progre
     An intact file is only read. Otherwise pooch downloads the file (checking
     the download's sha256, retrying ``retries`` times) into a staging folder
     next to the target; the gzip transform is applied when the registry asks
-    for one (not with a mirror, which serves final files); the result's size
-    and sha256 are checked; and only then is it moved into place with
+    for one (not with a mirror, which serves final files), and its result's
+    size and sha256 are checked; only then is it moved into place with
     ``os.replace``. The staging folder is always removed.
 
     Raises
@@ -323,11 +321,11 @@ def fetch_file(entry: DataFile, root: Path, *, mirror: str | None = None, progre
     try:
         landed = pooch_download(url, staging, sha256=entry.download_sha256 if transform else entry.sha256,
                                 retries=retries, timeout=timeout, progress=progress)
-        if transform:
+        if transform:  # pooch checked what was downloaded; check what it became
             landed = gzip_file(landed, staging / f"{target.name}.landed")
-        mismatch = landed_mismatch(landed, entry)
-        if mismatch is not None:
-            raise DataFetchError(failure_message(entry, url, target, f"after {'gzip' if transform else 'download'}: {mismatch}"))
+            mismatch = landed_mismatch(landed, entry)
+            if mismatch is not None:
+                raise DataFetchError(failure_message(entry, url, target, f"after gzip: {mismatch}"))
         os.replace(landed, target)
     except (ValueError, OSError) as exc:  # requests' RequestException is an OSError
         raise DataFetchError(failure_message(entry, url, target, failure_reason(exc))) from None
