@@ -36,7 +36,7 @@ from machine import machine_info  # noqa: E402
 
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.datasets.events import event_stream  # noqa: E402
-from fastslam_edu.experiment import load_mrclam, params_dict, summarize  # noqa: E402
+from fastslam_edu.experiment import load_mrclam, summarize  # noqa: E402
 from fastslam_edu.fastslam import PROPOSALS, FastSLAMParams, run_fastslam  # noqa: E402
 from fastslam_edu.initial_pose import initial_pose_from_landmarks  # noqa: E402
 
@@ -115,7 +115,7 @@ def main(argv=None) -> int:
           + ": not named by the targets; " + ", ".join(f"D{d}R{r}" for d, r in NO_GROUNDTRUTH)
           + ": no groundtruth, started from the landmarks (their absolute errors include the start's error)")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": machine_info(), "params": params_dict(params), "seeds": args.seeds, "targets": TARGETS, "table": table, "runs": runs},
+    args.out.write_text(json.dumps({"machine": machine_info(), "params": params.to_dict(), "seeds": args.seeds, "targets": TARGETS, "table": table, "runs": runs},
         indent=2))
     print(f"wrote {args.out}")
     return 0

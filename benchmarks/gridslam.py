@@ -52,7 +52,7 @@ VARIANTS = {  # name -> GridSLAMParams changes (M set separately)
 
 def params_for(kind: str, changes: dict, m: int) -> GridSLAMParams:
     base = GridSLAMParams.writeup() if kind == "writeup" else GridSLAMParams()
-    return base.with_(n_particles=m, **changes)
+    return base.replace(n_particles=m, **changes)
 
 
 def intel():

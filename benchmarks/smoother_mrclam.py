@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fastslam_accuracy import EXTRA, NO_GROUNDTRUTH, ROBOTS, TARGETS, _load, _run  # noqa: E402
 from machine import machine_info  # noqa: E402
 
-from fastslam_edu.experiment import params_dict, summarize_smoother  # noqa: E402
+from fastslam_edu.experiment import summarize_smoother  # noqa: E402
 from fastslam_edu.fastslam import FastSLAMParams, run_fastslam  # noqa: E402
 from fastslam_edu.smoother import smooth  # noqa: E402
 
@@ -94,7 +94,7 @@ def main(argv=None) -> int:
         print(f"  {row['robot']}: {diff:.3f} m, {dr['measurements_rejected']} against {sm['measurements_rejected']} "
               f"rejected, {dr['smoother_seconds']:.1f} s")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": machine_info(), "params": params_dict(FastSLAMParams()),
+    args.out.write_text(json.dumps({"machine": machine_info(), "params": FastSLAMParams().to_dict(),
                                     "seeds": args.seeds, "table": table, "filter_runs": filters}, indent=2))
     print(f"wrote {args.out}")
     return 0

@@ -14,8 +14,8 @@ Landmark SLAM (FastSLAM 1.0)
     ekf             one 2x2 EKF per landmark per particle: initialise and update
     weights         log importance weights, normalisation, effective sample size
     resampling      multinomial, systematic, stratified and residual resampling
-    fastslam        the vectorised filter (propagate, update, resample, combine)
-    fastslam_loop   the same filter, one particle at a time (the textbook form)
+    fastslam_step   one filter step per particle as Probabilistic Robotics table 13.1 reads (compiled, numba)
+    fastslam        the particle set, resampling, combining, and the run over a log (hooks, gate, proposals)
     proposal        FastSLAM 2.0's proposal: the pose sampled given the sighting (an engine option)
     landmark_tree   Montemerlo's persistent balanced tree of landmark filters
     fastslam_tree   the filter with tree-backed maps (O(M log K) resampling)

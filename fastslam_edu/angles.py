@@ -6,7 +6,10 @@ Every bearing residual and heading difference in the package goes through
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 
 def wrap_angle(a):
@@ -25,3 +28,9 @@ def wrap_angle(a):
     a = np.asarray(a, dtype=float)
     out = a - 2.0 * np.pi * np.ceil((a - np.pi) / (2.0 * np.pi))
     return out if out.ndim else float(out)
+
+
+@njit(cache=True, inline="always")
+def wrap_one(a):
+    """:func:`wrap_angle` of one angle ``a`` [rad], compiled (for the filter's per-particle kernels)."""
+    return a - 2.0 * math.pi * math.ceil((a - math.pi) / (2.0 * math.pi))

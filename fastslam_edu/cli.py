@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 
-from .fastslam import MODES, PROPOSALS, FastSLAMParams, with_params
+from .fastslam import MODES, PROPOSALS, FastSLAMParams
 
 
 def _positive_int(text: str) -> int:
@@ -149,7 +149,7 @@ def cmd_run(args) -> int:
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
     if args.smooth and args.mode != "slam":
         raise ValueError(f"--smooth solves full SLAM; it does not apply to --mode {args.mode}")
-    params = with_params(FastSLAMParams(), n_particles=args.particles, mode=args.mode, resampler=args.resampler,
+    params = FastSLAMParams().replace(n_particles=args.particles, mode=args.mode, resampler=args.resampler,
                          proposal=args.proposal)
     result, summary, ctx = run_mrclam(
         args.data, args.robot, params, args.seed, rate=args.rate, groundtruth_file=args.groundtruth,
@@ -209,7 +209,7 @@ def cmd_gridslam(args) -> int:
     changes = {"n_particles": args.particles, "maps": args.maps}
     if args.no_scan_match:
         changes["match_iterations"] = 0
-    params = base.with_(**changes)
+    params = base.replace(**changes)
     reference = _read_laser(args.reference, _laser_format(args.reference, None), "--reference") if args.reference else None
     relations = read_relations(args.relations) if args.relations else None
 

@@ -20,7 +20,7 @@ cloud (:func:`pose_covariance`: the weighted mean and covariance of the
 particles' poses, headings averaged on the circle); the map's are those of the
 mixture of the particles' landmark EKFs
 (:func:`fastslam_edu.fastslam.combined_map`). :class:`SpreadRecorder` collects
-the cloud during a run through ``run_fastslam(..., monitor=...)`` without
+the cloud during a run through ``run_fastslam(..., hooks=[Monitor(callback)])`` without
 changing it. :func:`align_pose` moves a pose and its covariance by the rigid
 motion that fits the estimated map to the true one: the NEES of the aligned
 pose asks whether the filter knows where it is *relative to its own map*, the
@@ -33,7 +33,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from fastslam_edu.angles import wrap_angle
-from fastslam_edu.fastslam import FastSLAMParams, combined_map, combined_pose, with_params
+from fastslam_edu.fastslam import FastSLAMParams, combined_map, combined_pose
 from fastslam_edu.sim import SimConfig
 
 __all__ = [
@@ -212,6 +212,6 @@ def simulator_params(config: SimConfig | None = None, **changes) -> FastSLAMPara
     (``n_particles=1000``, ``mode="localize"``, ...).
     """
     c = SimConfig() if config is None else config
-    return with_params(FastSLAMParams(), motion_noise=c.odometry_noise,
+    return FastSLAMParams().replace(motion_noise=c.odometry_noise,
                        measurement_cov=np.diag([c.range_std**2, c.bearing_std**2]), range_std_slope=0.0,
                        measurement_correlation_s=None, **changes)

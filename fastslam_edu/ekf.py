@@ -28,16 +28,21 @@ symbol     shape    meaning
 
 The batched functions accept any leading dimensions ``...`` (particles, or
 particles × measurements) that broadcast against each other; the 2×2 inverses
-and determinants are written out in closed form so that everything is a few
-vectorised numpy operations. :func:`update_landmark_one` is the same update
-for a single landmark, written line by line like the textbook.
+and determinants are written out in closed form. The update itself is
+:func:`ekf_update`, compiled (numba) and written for one landmark of one
+particle, entry by entry; the filter's per-particle step calls it directly.
+:func:`update_landmark_one` is the same update written line by line like the
+textbook, with numpy's 2×2 matrices.
 """
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
-from fastslam_edu.angles import wrap_angle
+import numpy as np
+from numba import njit
+
+from fastslam_edu.angles import wrap_one
 
 from fastslam_edu.measurement import (
     _as_finite,
@@ -51,7 +56,7 @@ from fastslam_edu.measurement import (
 
 
 #: log(2π), the constant of the 2-D Gaussian log-density.
-LOG_2PI = float(np.log(2.0 * np.pi))
+LOG_2PI = math.log(2.0 * math.pi)
 
 
 def _transpose(A: np.ndarray) -> np.ndarray:
@@ -257,95 +262,110 @@ def update_landmark(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, np.ndar
     R = _check_covariance("R", R, caller)
 
     jacobian_landmark(x, mu)  # raises a clear ValueError if a landmark sits on the robot (r = 0)
-    # the unchecked update reads Σ's upper triangle: remove the (tolerated) rounding asymmetry first
-    mu_new, Sigma_new, log_likelihood, _ = update_landmark_unchecked(mu, _symmetrise(Sigma), x, z, R)
-    return mu_new, Sigma_new, log_likelihood
+    shape = np.broadcast_shapes(mu.shape[:-1], Sigma.shape[:-2], x.shape[:-1], z.shape[:-1], R.shape[:-2])
+    mu_new = np.array(np.broadcast_to(mu, shape + (2,)), dtype=float).reshape(-1, 2)
+    # the compiled update reads Σ's upper triangle: remove the (tolerated) rounding asymmetry first
+    Sigma_new = np.array(np.broadcast_to(_symmetrise(Sigma), shape + (2, 2)), dtype=float).reshape(-1, 2, 2)
+    log_likelihood = np.empty(len(mu_new))
+    _update_each(np.ascontiguousarray(np.broadcast_to(x, shape + (3,)).reshape(-1, 3)),
+                 np.ascontiguousarray(np.broadcast_to(z, shape + (2,)).reshape(-1, 2)),
+                 np.ascontiguousarray(np.broadcast_to(R, shape + (2, 2)).reshape(-1, 2, 2)),
+                 mu_new, Sigma_new, log_likelihood)
+    return mu_new.reshape(shape + (2,)), Sigma_new.reshape(shape + (2, 2)), log_likelihood.reshape(shape)
 
 
-def update_landmark_unchecked(mu, Sigma, x, z, R):
-    """:func:`update_landmark` without the input checks, also returning ``d² = νᵀQ⁻¹ν``.
+@njit(cache=True)
+def _update_each(x, z, R, mu, Sigma, log_likelihood):
+    """:func:`ekf_update` for each of n landmarks in a row (arrays (n, ...)), in place."""
+    for i in range(mu.shape[0]):
+        log_likelihood[i] = ekf_update(x[i], z[i], R[i], mu[i], Sigma[i], math.inf)[1]
 
-    The filter's inner loop calls this with arrays it has built itself (already
-    checked once); it computes exactly what :func:`update_landmark` documents,
-    plus the squared Mahalanobis distance of the innovation used by the outlier
-    gate. Returns ``(mu_new, Sigma_new, log_likelihood, d2)``.
 
-    It is the two halves below in a row: :func:`innovation_unchecked` (predict
-    the measurement, compare, weigh) and :func:`kalman_correction_unchecked` (move
-    the landmark). The filter calls them separately so that the outlier gate can
-    look at ``d²`` before the landmark moves.
+# ---------------------------------------------------------------- compiled, one landmark of one particle
+
+
+@njit(cache=True, inline="always")
+def expected_measurement(pose, m):
+    """:math:`\\hat z = h(x, m)` and :math:`H = \\partial h / \\partial m` for one pose (3,) and landmark (2,).
+
+    Returns ``r, phi, h00, h01, h10, h11``: range [m], bearing [rad] (wrapped) and
+    :math:`H = \\begin{pmatrix} \\delta_x/r & \\delta_y/r \\ -\\delta_y/r^2 & \\delta_x/r^2 \\end{pmatrix}`.
     """
-    terms, d2, log_likelihood = innovation_unchecked(mu, Sigma, x, z, R)
-    mu_new, Sigma_new = kalman_correction_unchecked(mu, terms)
-    return mu_new, Sigma_new, log_likelihood, d2
-
-
-def innovation_unchecked(mu, Sigma, x, z, R):
-    """First half of the EKF update: ``ẑ``, ``H``, ``Q``, ``ν``, ``d²`` and ``log N(ν; 0, Q)``.
-
-    Shapes as in :func:`update_landmark` (unchecked inputs; ``Σ`` must be exactly
-    symmetric, as every covariance the filter stores is).
-
-    Returns
-    -------
-    terms : tuple
-        What :func:`kalman_correction_unchecked` needs, entry by entry:
-        ``ν = (ν_r, ν_φ)``, ``P = H Σ`` (4 entries), ``Q⁻¹`` (3 entries) and ``Σ`` (3 entries).
-    d2 : ndarray, shape (...)
-        ``νᵀ Q⁻¹ ν``, the squared Mahalanobis distance (for the gate).
-    log_likelihood : ndarray, shape (...)
-        ``log N(ν; 0, Q) = −½ d² − log 2π − ½ log det Q``.
-    """
-    # The algebra of update_landmark written out entry by entry for 2×2
-    # matrices: ~70 elementwise operations on (M,) arrays beat a dozen stacked
-    # matmuls when M is in the hundreds.
-    dx = mu[..., 0] - x[..., 0]
-    dy = mu[..., 1] - x[..., 1]
+    dx = m[0] - pose[0]
+    dy = m[1] - pose[1]
     q = dx * dx + dy * dy
-    r = np.sqrt(q)
-    h00, h01, h10, h11 = dx / r, dy / r, -dy / q, dx / q  # H = ∂h/∂m
-    a, b, d = Sigma[..., 0, 0], Sigma[..., 0, 1], Sigma[..., 1, 1]
-    R = np.asarray(R, dtype=float)
+    r = math.sqrt(q)
+    phi = wrap_one(math.atan2(dy, dx) - pose[2])
+    return r, phi, dx / r, dy / r, -dy / q, dx / q
+
+
+@njit(cache=True, inline="always")
+def ekf_initialise(pose, z, R, mu, sigma):
+    """Lines 6–8: ``mu`` (2,) and ``sigma`` (2, 2) of a landmark seen for the first time, in place.
+
+    :math:`\\mu = h^{-1}(x, z) = (x + r\\cos(\\phi+\\theta),\\ y + r\\sin(\\phi+\\theta))` and
+    :math:`\\Sigma = G R G^\\top` with :math:`G = \\partial h^{-1}/\\partial z = H^{-1}`.
+    """
+    r, phi = z[0], z[1]
+    c, s = math.cos(phi + pose[2]), math.sin(phi + pose[2])
+    mu[0] = pose[0] + r * c
+    mu[1] = pose[1] + r * s
+    g00, g01, g10, g11 = c, -r * s, s, r * c  # G = ∂h⁻¹/∂(r, φ)
+    a, b, d = R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1]
+    sigma[0, 0] = g00 * (a * g00 + b * g01) + g01 * (b * g00 + d * g01)
+    sigma[0, 1] = g00 * (a * g10 + b * g11) + g01 * (b * g10 + d * g11)
+    sigma[1, 0] = sigma[0, 1]
+    sigma[1, 1] = g10 * (a * g10 + b * g11) + g11 * (b * g10 + d * g11)
+
+
+@njit(cache=True, inline="always")
+def ekf_innovation(pose, z, R, mu, sigma):
+    """Lines 11–13 and 17: innovation, its covariance and likelihood for one landmark.
+
+    Returns ``(nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, loglik)``:
+    :math:`\\nu = z - \\hat z` (bearing wrapped), :math:`H`, :math:`Q = H\\Sigma H^\\top + R` (symmetric),
+    :math:`d^2 = \\nu^\\top Q^{-1}\\nu` and :math:`\\log\\mathcal N(\\nu; 0, Q) = -\\tfrac12 d^2 - \\log 2\\pi - \\tfrac12\\log\\det Q`.
+    """
+    r, phi, h00, h01, h10, h11 = expected_measurement(pose, mu)
+    a, b, d = sigma[0, 0], sigma[0, 1], sigma[1, 1]
     p00, p01 = h00 * a + h01 * b, h00 * b + h01 * d  # P = H Σ
     p10, p11 = h10 * a + h11 * b, h10 * b + h11 * d
-    q00 = p00 * h00 + p01 * h01 + R[..., 0, 0]  # Q = H Σ Hᵀ + R
-    q01 = p00 * h10 + p01 * h11 + 0.5 * (R[..., 0, 1] + R[..., 1, 0])
-    q11 = p10 * h10 + p11 * h11 + R[..., 1, 1]
-    det_Q = q00 * q11 - q01 * q01
-    i00, i01, i11 = q11 / det_Q, -q01 / det_Q, q00 / det_Q  # Q⁻¹
-    n0 = z[..., 0] - r  # ν = z ⊖ ẑ
-    n1 = wrap_angle(z[..., 1] - (np.arctan2(dy, dx) - x[..., 2]))
-    d2 = n0 * (i00 * n0 + i01 * n1) + n1 * (i01 * n0 + i11 * n1)
-    log_likelihood = -0.5 * d2 - LOG_2PI - 0.5 * np.log(det_Q)
-    return (n0, n1, p00, p01, p10, p11, i00, i01, i11, a, b, d), d2, log_likelihood
+    q00 = p00 * h00 + p01 * h01 + R[0, 0]  # Q = H Σ Hᵀ + R
+    q01 = p00 * h10 + p01 * h11 + 0.5 * (R[0, 1] + R[1, 0])
+    q11 = p10 * h10 + p11 * h11 + R[1, 1]
+    det_q = q00 * q11 - q01 * q01
+    nu0 = z[0] - r
+    nu1 = wrap_one(z[1] - phi)
+    d2 = (q11 * nu0 * nu0 - 2.0 * q01 * nu0 * nu1 + q00 * nu1 * nu1) / det_q
+    loglik = -0.5 * d2 - LOG_2PI - 0.5 * math.log(det_q)
+    return nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, loglik
 
 
-def kalman_correction_unchecked(mu, terms, apply=None):
-    """Second half of the EKF update: ``K = Σ Hᵀ Q⁻¹``, ``μ' = μ + K ν``, ``Σ' = Σ − K H Σ``.
+@njit(cache=True, inline="always")
+def ekf_update(pose, z, R, mu, sigma, gate_chi2):
+    """Lines 11–17: the EKF update of one landmark (``mu`` (2,), ``sigma`` (2, 2), in place).
 
-    ``terms`` from :func:`innovation_unchecked`. ``apply`` (bool, broadcasting with
-    the batch shape): where False the gain is zero, so ``μ' = μ`` and ``Σ' = Σ``
-    exactly — how the outlier gate leaves a landmark alone. Returns
-    ``(mu_new (..., 2), Sigma_new (..., 2, 2))``; ``Σ'`` is exactly symmetric.
+    :math:`K = \\Sigma H^\\top Q^{-1}`, :math:`\\mu \\mathrel{+}= K\\nu`, :math:`\\Sigma = (I - KH)\\Sigma`
+    (kept exactly symmetric), unless :math:`d^2 >` ``gate_chi2`` (``inf``: always).
+    Returns ``(d2, loglik)`` of :func:`ekf_innovation`, computed before the update.
     """
-    n0, n1, p00, p01, p10, p11, i00, i01, i11, a, b, d = terms
-    if apply is not None:  # Q⁻¹ = 0 where not applied: then K = 0 exactly
-        apply = np.asarray(apply, dtype=float)
-        i00, i01, i11 = i00 * apply, i01 * apply, i11 * apply
-    k00, k01 = p00 * i00 + p10 * i01, p00 * i01 + p10 * i11  # K = Σ Hᵀ Q⁻¹ = Pᵀ Q⁻¹
-    k10, k11 = p01 * i00 + p11 * i01, p01 * i01 + p11 * i11
-    mu_new = np.empty(np.shape(k00) + (2,))
-    mu_new[..., 0] = mu[..., 0] + k00 * n0 + k01 * n1
-    mu_new[..., 1] = mu[..., 1] + k10 * n0 + k11 * n1
-    # Σ' = (I − K H) Σ = Σ − K P, whose symmetric part is Σ − K Q Kᵀ (c01 below is
-    # computed once, so the result is exactly symmetric)
-    c00 = a - (k00 * p00 + k01 * p10)
-    c01 = b - (k00 * p01 + k01 * p11)
-    c11 = d - (k10 * p01 + k11 * p11)
-    Sigma_new = np.empty(np.shape(c00) + (2, 2))
-    Sigma_new[..., 0, 0], Sigma_new[..., 1, 1] = c00, c11
-    Sigma_new[..., 0, 1] = Sigma_new[..., 1, 0] = c01
-    return mu_new, Sigma_new
+    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, loglik = ekf_innovation(pose, z, R, mu, sigma)
+    if d2 > gate_chi2:
+        return d2, loglik
+    det_q = q00 * q11 - q01 * q01
+    i00, i01, i11 = q11 / det_q, -q01 / det_q, q00 / det_q  # Q⁻¹
+    a, b, d = sigma[0, 0], sigma[0, 1], sigma[1, 1]
+    s00, s01 = a * h00 + b * h01, a * h10 + b * h11  # Σ Hᵀ
+    s10, s11 = b * h00 + d * h01, b * h10 + d * h11
+    k00, k01 = s00 * i00 + s01 * i01, s00 * i01 + s01 * i11  # K = Σ Hᵀ Q⁻¹
+    k10, k11 = s10 * i00 + s11 * i01, s10 * i01 + s11 * i11
+    mu[0] += k00 * nu0 + k01 * nu1
+    mu[1] += k10 * nu0 + k11 * nu1
+    # Σ − K H Σ = Σ − K (Σ Hᵀ)ᵀ, the off-diagonal entry computed once (symmetric)
+    sigma[0, 0] = a - (k00 * s00 + k01 * s01)
+    sigma[0, 1] = sigma[1, 0] = b - (k00 * s10 + k01 * s11)
+    sigma[1, 1] = d - (k10 * s10 + k11 * s11)
+    return d2, loglik
 
 
 def update_landmark_one(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, float]:

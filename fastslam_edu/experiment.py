@@ -26,7 +26,7 @@ from .datasets.audit import apply_landmark_audit
 from .datasets.events import event_stream, groundtruth_at
 from .datasets.log import Dataset, RobotLog
 from .datasets.mrclam import groundtruth_files, read_dataset, read_groundtruth_csv, read_groundtruth_dat, robots_in
-from .fastslam import FastSLAMParams, FastSLAMResult, run_fastslam
+from .fastslam import FastSLAMParams, FastSLAMResult, Kidnap, ProgressBar, run_fastslam
 from .initial_pose import initial_pose_from_landmarks
 from .smoother import SmootherResult
 
@@ -158,25 +158,6 @@ def score_estimate(t, poses, landmarks, observed, landmark_subjects, dataset: Da
     return out
 
 
-def params_dict(params: FastSLAMParams) -> dict:
-    """FastSLAMParams as plain JSON-able values."""
-    R = params.measurement_cov
-    return {
-        "n_particles": params.n_particles,
-        "motion_noise": dataclasses.asdict(params.motion_noise),
-        "measurement_std": [float(np.sqrt(R[0, 0])), float(np.sqrt(R[1, 1]))],
-        "resampler": params.resampler,
-        "resample_threshold": params.resample_threshold,
-        "gate_chi2": params.gate_chi2,
-        "gate_escape_s": params.gate_escape_s,
-        "measurement_correlation_s": params.measurement_correlation_s,
-        "mode": params.mode,
-        "odometry_scale": list(params.odometry_scale),
-        "range_std_slope": params.range_std_slope,
-        "proposal": params.proposal,
-    }
-
-
 def params_table(params: FastSLAMParams, name: str = "FastSLAMParams()"):
     """FastSLAMParams as one readable column (a pandas DataFrame), for the book.
 
@@ -253,12 +234,11 @@ def run_mrclam(
         np.random.default_rng(seed),
         landmarks=dataset.landmark_positions,
         groundtruth_poses=gt_fn,
-        kidnap=kidnap,
-        progress=progress,
+        hooks=([Kidnap(*kidnap)] if kidnap is not None else []) + ([ProgressBar()] if progress else []),
     )
     summary = summarize(result, dataset, log)
     summary.update(
-        dataset=str(path), robot=robot, rate=rate, seed=seed, params=params_dict(params), notes=notes,
+        dataset=str(path), robot=robot, rate=rate, seed=seed, params=params.to_dict(), notes=notes,
         x0=[float(v) for v in stream.x0], sightings_skipped=_skipped(log),
     )
     return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes}

@@ -77,7 +77,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import logit
@@ -85,6 +85,7 @@ from scipy.special import logit
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.laser import LaserLog, odometry_increments
 from fastslam_edu.grid import OccupancyGrid, bresenham, scan_endpoints
+from fastslam_edu.params import Params
 from fastslam_edu.resampling import get_resampler
 from fastslam_edu.se2 import compose, compose_increments, transform_points
 from fastslam_edu.weights import effective_sample_size, normalise_log_weights
@@ -112,15 +113,15 @@ __all__ = [
 MAP_MODES = ("best", "particles")
 
 
-@dataclass(frozen=True)
-class GridSLAMParams:
+@dataclass(frozen=True, eq=False)
+class GridSLAMParams(Params):
     """Settings of grid SLAM (units: m, rad).
 
     The defaults are what works on the Intel lab log (measured in
     ``benchmarks/gridslam.py``): the graded correlation (``hit_sigma = 0.1`` m),
     resampling when ``N_eff < M/2``, and scan matching (10 rounds). The
     write-up's exact algorithm is :meth:`writeup`; without scan matching use
-    ``with_(match_iterations=0)``.
+    ``replace(match_iterations=0)``.
 
     Attributes
     ----------
@@ -229,12 +230,6 @@ class GridSLAMParams:
     def l_free(self) -> float:
         return float(logit(self.p_miss))
 
-    def to_dict(self) -> dict:
-        """Plain dict (for JSON)."""
-        d = {f.name: getattr(self, f.name) for f in fields(self)}
-        d["extent"] = None if self.extent is None else [float(v) for v in self.extent]
-        return d
-
     @classmethod
     def writeup(cls, **changes) -> GridSLAMParams:
         """The write-up's algorithm exactly: ``w ∝ exp(c)`` with the 0/1 map, resampling every step, no matching.
@@ -249,14 +244,6 @@ class GridSLAMParams:
         base = dict(hit_sigma=0.0, temperature=1.0, resample_threshold=1.0, match_iterations=0)
         base.update(changes)
         return cls(**base)
-
-    def with_(self, **changes) -> GridSLAMParams:
-        """A copy with some fields changed (unknown names raise ValueError)."""
-        names = {f.name for f in fields(self)}
-        bad = sorted(set(changes) - names)
-        if bad:
-            raise ValueError(f"GridSLAMParams: unknown setting(s) {bad}; valid: {sorted(names)}")
-        return replace(self, **changes)
 
 
 @dataclass

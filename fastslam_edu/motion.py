@@ -41,12 +41,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from fastslam_edu.angles import wrap_angle
+from fastslam_edu.params import Params
 
 _MODES = ("control", "state")
 
 
-@dataclass(frozen=True)
-class MotionNoise:
+@dataclass(frozen=True, eq=False)
+class MotionNoise(Params):
     """Noise of the motion model, as densities (standard deviation per √second).
 
     Two modes, as the two options of the write-up's ``propagate_all_states``:
@@ -111,6 +112,11 @@ class MotionNoise:
                     f"{'state' if self.mode == 'control' else 'control'!r}, but mode={self.mode!r} "
                     f"and {name}={getattr(self, name)!r}; set it to 0 or change the mode"
                 )
+
+    @property
+    def densities(self) -> np.ndarray:
+        """``(σ_v, σ_ω, σ_xy, σ_θ)`` as an array (what :func:`fastslam_edu.fastslam_step.sample_pose` takes)."""
+        return np.array([self.sigma_v, self.sigma_omega, self.sigma_xy, self.sigma_theta])
 
     @property
     def n_draws(self) -> int:
@@ -381,7 +387,7 @@ def segment_increments(x, u, dt, noise: MotionNoise, eps):
     and the step moves the robot by ``Δs_j (cos θ_j, sin θ_j)`` (plus, for noise
     on the state, ``σ_xy √Δt (ε₁, ε₂)``). The poses are running sums of these
     displacements: :func:`move_segment` takes them; the filter, which needs only
-    weighted means, sums far fewer numbers (:func:`fastslam_edu.fastslam.propagate_segment`).
+    weighted means, runs the same steps one particle at a time (:func:`fastslam_edu.fastslam_step.sample_segment`).
 
     Parameters are those of :func:`move_segment` (unchecked: ``x`` (M, 3),
     ``u`` (L, 2), ``dt`` (L,), ``eps`` (M, L, noise.n_draws)).
@@ -404,10 +410,7 @@ def segment_increments(x, u, dt, noise: MotionNoise, eps):
         dth = dth + noise.sigma_theta * sq * eps[..., 2]
     # heading after each step, (M, L); a running sum of one step is that step
     theta_end = x[:, 2:3] + (np.cumsum(dth, axis=1) if dth.shape[-1] > 1 else dth)
-    # cos and sin of the heading at the start of each step, in single precision:
-    # numpy vectorises them (~10× faster than double here); a 1e-7 rad rounding
-    # of θ moves a ~5 mm step by 5e-10 m.
-    heading = (theta_end - dth).astype(np.float32)
+    heading = theta_end - dth  # the heading at the start of each step
     dx = ds * np.cos(heading)
     dy = ds * np.sin(heading)
     if noise.mode != "control":

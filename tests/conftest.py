@@ -5,8 +5,13 @@ fixed seed. Set HYPOTHESIS_PROFILE=explore to search with fresh random examples 
 """
 
 import os
+import sys
+from pathlib import Path
 
 from hypothesis import settings
+
+# benchmarks/textbook_loop.py, the independent loop over particle objects the filter is tested against
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 settings.register_profile("fixed", derandomize=True)
 settings.register_profile("explore", derandomize=False)
@@ -18,7 +23,6 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "fixed"))
 import functools  # noqa: E402
 import http.server  # noqa: E402
 import threading  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
 

@@ -17,8 +17,7 @@ from fastslam_edu.consistency import (
     simulator_params,
 )
 from fastslam_edu.datasets.events import groundtruth_at
-from fastslam_edu.fastslam import combined_pose, run_fastslam
-from fastslam_edu.metrics import align_se2
+from fastslam_edu.fastslam import Monitor, combined_pose, run_fastslam
 from fastslam_edu.sim import SimConfig
 from streams import simulate
 
@@ -117,7 +116,7 @@ def test_spread_recorder_sees_what_the_filter_estimates_and_changes_nothing():
     params = simulator_params(n_particles=50)
     plain = run_fastslam(stream, params, 1)
     every = SpreadRecorder(maps=True)
-    watched = run_fastslam(stream, params, 1, monitor=every)
+    watched = run_fastslam(stream, params, 1, hooks=[Monitor(every)])
     np.testing.assert_array_equal(plain.pose_mean, watched.pose_mean)
     np.testing.assert_array_equal(plain.particles.mu, watched.particles.mu)
     # one record per measurement step, whose mean is the filter's estimate at that step
@@ -126,7 +125,7 @@ def test_spread_recorder_sees_what_the_filter_estimates_and_changes_nothing():
     np.testing.assert_allclose(np.array(every.mean), plain.pose_mean[steps], atol=1e-12)
     np.testing.assert_allclose(every.maps[-1][0], plain.landmarks_mean, atol=1e-12)
     some = SpreadRecorder(times=stream.t[0] + np.array([5.0, 10.0, 10.1, 1e9]))
-    run_fastslam(stream, params, 1, monitor=some)
+    run_fastslam(stream, params, 1, hooks=[Monitor(some)])
     # one record per time passed: 10 and 10.1 s fall on one step (recorded twice), 1e9 s never comes
     assert len(some.t) == 3 and some.t[0] >= stream.t[0] + 5.0 and some.t[1] == some.t[2] >= stream.t[0] + 10.1
 
@@ -138,7 +137,7 @@ def _mean_pose_nees(n_runs, duration, times, **changes):
         data, log, stream = simulate(seed, duration=duration)
         rec = SpreadRecorder(times=stream.t[0] + np.asarray(times))
         extra = {"landmarks": data.landmark_positions} if changes.get("mode") == "localize" else {}
-        result = run_fastslam(stream, simulator_params(**changes), seed, monitor=rec, **extra)
+        result = run_fastslam(stream, simulator_params(**changes), seed, hooks=[Monitor(rec)], **extra)
         truth = groundtruth_at(log, np.array(rec.t))
         pose.append(nees(pose_error(np.array(rec.mean), truth), np.array(rec.cov) + 1e-12 * np.eye(3)))
         seen = result.observed
@@ -180,8 +179,8 @@ def test_spread_recorder_reads_tree_backed_particles_too():
     data, log, stream = simulate(1, duration=10.0)
     params = simulator_params(n_particles=20)
     dense, tree = SpreadRecorder(maps=True), SpreadRecorder(maps=True)
-    run_fastslam(stream, params, 3, monitor=dense)
-    run_fastslam(stream, params, 3, monitor=tree, particle_class=TreeParticleSet)
+    run_fastslam(stream, params, 3, hooks=[Monitor(dense)])
+    run_fastslam(stream, params, 3, hooks=[Monitor(tree)], particle_class=TreeParticleSet)
     np.testing.assert_allclose(np.array(tree.cov), np.array(dense.cov), atol=1e-12)
     np.testing.assert_allclose(tree.maps[-1][0], dense.maps[-1][0], atol=1e-12)
 
@@ -222,5 +221,5 @@ def test_spread_recorder_takes_a_step_exactly_at_a_requested_time():
     params = simulator_params(n_particles=10)
     steps_t = run_fastslam(stream, params, 1).ess_t
     rec = SpreadRecorder(times=[steps_t[3], steps_t[7]])
-    run_fastslam(stream, params, 1, monitor=rec)
+    run_fastslam(stream, params, 1, hooks=[Monitor(rec)])
     assert rec.t == [float(steps_t[3]), float(steps_t[7])]

@@ -14,12 +14,12 @@ from scipy.stats import multivariate_normal
 from fastslam_edu.ekf import (
     gaussian_log_likelihood,
     initialise_landmark,
+    ekf_initialise,
+    ekf_innovation,
+    ekf_update,
     innovation_statistics,
-    innovation_unchecked,
-    kalman_correction_unchecked,
     update_landmark,
     update_landmark_one,
-    update_landmark_unchecked,
 )
 
 # -- random EKF cases ------------------------------------------------------------------------
@@ -171,30 +171,34 @@ def test_batched_over_particles_and_measurements():
             assert abs(out[2][i, k] - l1) < 1e-12 * max(1.0, abs(l1))
 
 
-def test_the_two_halves_are_the_update_and_a_zero_gain_changes_nothing(cases):
-    """innovation_unchecked + kalman_correction_unchecked = the update; apply=False leaves μ, Σ exactly."""
+def test_the_compiled_kernels_one_landmark_at_a_time(cases):
+    """ekf_innovation's Q and d² against Q = H Σ Hᵀ + R written out; ekf_update against the textbook
+    update_landmark_one; beyond the gate, μ and Σ are left exactly as they were; ekf_initialise against
+    initialise_landmark (the inverse model, numpy)."""
     (mu, Sigma, x, z, R), _ = cases
     Sigma = 0.5 * (Sigma + Sigma.transpose(0, 2, 1))  # the filter stores exactly symmetric Σ
-    terms, d2, loglik = innovation_unchecked(mu, Sigma, x, z, R)
-    mu_ref, Sigma_ref, loglik_ref = update_landmark(mu, Sigma, x, z, R)
-    np.testing.assert_array_equal(loglik, loglik_ref)
-    H = np.stack([H_by_hand(m[:, None], pose) for m, pose in zip(mu, x)])
-    Q = H @ Sigma @ H.transpose(0, 2, 1) + R  # written out independently
-    Q_inv = np.stack([np.column_stack(terms[6:8]), np.column_stack(terms[7:9])], axis=1)
-    np.testing.assert_allclose(Q_inv @ Q, np.broadcast_to(np.eye(2), Q.shape), atol=1e-9)
-    nu = np.column_stack(terms[:2])
-    np.testing.assert_allclose(d2, np.einsum("ni,nij,nj->n", nu, np.linalg.inv(Q), nu), rtol=1e-9)
-    apply = np.arange(len(mu)) % 3 != 0  # every third case an outlier left alone
-    mu_new, Sigma_new = kalman_correction_unchecked(mu, terms, apply)
-    np.testing.assert_array_equal(mu_new[apply], mu_ref[apply])
-    np.testing.assert_array_equal(Sigma_new[apply], Sigma_ref[apply])
-    np.testing.assert_array_equal(mu_new[~apply], mu[~apply])  # bitwise: K = 0 exactly
-    np.testing.assert_array_equal(Sigma_new[~apply], Sigma[~apply])
-    assert not np.array_equal(mu_ref[~apply], mu[~apply])  # the update would have moved them
-    mu_u, Sigma_u, loglik_u, d2_u = update_landmark_unchecked(mu, Sigma, x, z, R)
-    np.testing.assert_array_equal(mu_u, mu_ref)
-    np.testing.assert_array_equal(Sigma_u, Sigma_ref)
-    np.testing.assert_array_equal(d2_u, d2)
+    for i in range(len(mu)):
+        nu0, nu1, *_, q00, q01, q11, d2, loglik = ekf_innovation(x[i], z[i], R[i], mu[i], Sigma[i])
+        H = H_by_hand(mu[i][:, None], x[i])
+        Q = H @ Sigma[i] @ H.T + R[i]  # written out independently
+        np.testing.assert_allclose([[q00, q01], [q01, q11]], Q, rtol=1e-12, atol=1e-15)
+        nu = np.array([nu0, nu1])
+        assert math.isclose(d2, nu @ np.linalg.solve(Q, nu), rel_tol=1e-9)
+        mu_book, Sigma_book, loglik_book = update_landmark_one(mu[i], Sigma[i], x[i], z[i], R[i])
+        m, S = mu[i].copy(), Sigma[i].copy()
+        assert ekf_update(x[i], z[i], R[i], m, S, math.inf) == (d2, loglik)
+        np.testing.assert_allclose(m, mu_book, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(S, Sigma_book, rtol=0, atol=1e-12)
+        assert abs(loglik - loglik_book) < 1e-12 * max(1.0, abs(loglik_book))
+        m, S = mu[i].copy(), Sigma[i].copy()
+        ekf_update(x[i], z[i], R[i], m, S, 0.99 * d2)  # an outlier: left alone, bitwise
+        np.testing.assert_array_equal(m, mu[i])
+        np.testing.assert_array_equal(S, Sigma[i])
+        m, S = np.empty(2), np.empty((2, 2))
+        ekf_initialise(x[i], z[i], R[i], m, S)
+        m_ref, S_ref = initialise_landmark(x[i], z[i], R[i])
+        np.testing.assert_allclose(m, m_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(S, S_ref, rtol=1e-12, atol=1e-18)
 
 
 def test_checked_update_symmetrises_a_slightly_asymmetric_sigma():

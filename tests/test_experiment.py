@@ -1,4 +1,4 @@
-"""fastslam_edu.experiment's parameter records: every field of FastSLAMParams, no more, no less."""
+"""Parameter sets as values (compare, hash, copy, JSON) and fastslam_edu.experiment's table of them."""
 
 from __future__ import annotations
 
@@ -6,9 +6,11 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 
-from fastslam_edu.experiment import params_dict, params_table
+from fastslam_edu.experiment import params_table
 from fastslam_edu.fastslam import FastSLAMParams
+from fastslam_edu.gridslam import GridSLAMParams
 from fastslam_edu.motion import MotionNoise
 
 
@@ -23,8 +25,25 @@ def test_params_table_spells_out_every_field():
     assert others <= set(col.index)
 
 
-def test_params_dict_is_json_and_has_every_setting_that_changes_a_run():
-    d = json.loads(json.dumps(params_dict(FastSLAMParams())))
-    skipped = {f.name for f in dataclasses.fields(FastSLAMParams)} - set(d)
-    assert skipped == {"measurement_cov"}  # given as measurement_std
-    assert d["measurement_std"] == [0.07, 0.02]
+def test_parameter_sets_are_values_json_and_copied_one_way():
+    """FastSLAMParams and GridSLAMParams: ==, hash, read-only arrays, replace() validated, to_dict() round trip."""
+    a, b = FastSLAMParams(), FastSLAMParams()
+    assert a == b and hash(a) == hash(b) and len({a, b}) == 1
+    with pytest.raises(ValueError, match="read-only"):
+        a.measurement_cov[0, 0] = 1.0  # the default instance cannot be changed in place
+    c = a.replace(measurement_cov=np.diag([0.1**2, 0.03**2]))
+    assert c != a and hash(c) != hash(a) and a.measurement_cov[0, 0] == 0.07**2
+    assert a.replace(motion_noise=a.motion_noise.replace(sigma_v=0.03)) != a
+    with pytest.raises(ValueError, match="unknown setting"):
+        a.replace(particles=3)
+    with pytest.raises(ValueError, match="n_particles"):
+        a.replace(n_particles=0)
+    d = json.loads(json.dumps(a.to_dict()))
+    assert set(d) == {f.name for f in dataclasses.fields(FastSLAMParams)}
+    assert d["measurement_cov"] == [[0.07**2, 0.0], [0.0, 0.02**2]] and d["motion_noise"]["sigma_omega"] == 0.05
+    rebuilt = FastSLAMParams(**{**d, "motion_noise": MotionNoise(**d["motion_noise"]),
+                                "odometry_scale": tuple(d["odometry_scale"])})
+    assert rebuilt == a
+    g = GridSLAMParams(extent=(0.0, 1.0, 0.0, 2.0))
+    assert g == GridSLAMParams(extent=(0.0, 1.0, 0.0, 2.0)) and g != GridSLAMParams()
+    assert json.loads(json.dumps(g.to_dict()))["extent"] == [0.0, 1.0, 0.0, 2.0]

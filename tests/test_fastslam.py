@@ -474,7 +474,7 @@ def test_gate_reinitialises_a_young_landmark_at_no_cost_when_another_particle_ex
 def test_gate_escape_starts_exactly_escape_s_after_the_first_unexplained_sighting():
     """By hand, escape_s = 5: unexplained since t = 1 (kept through later unexplained sightings) escapes from
     t = 6 on, not at 5.9; an explained sighting ends it; escape_s None never escapes."""
-    g = fs.GateEscape(3, 5.0)
+    g = fs.Gate(None, 5.0, 3)
     g.record(1.0, np.array([0, 1]), np.array([False, True]))
     assert g.escaped(5.9, np.array([0, 1])).tolist() == [False, False]
     assert g.escaped(6.0, np.array([0, 1])).tolist() == [True, False]
@@ -482,7 +482,7 @@ def test_gate_escape_starts_exactly_escape_s_after_the_first_unexplained_sightin
     assert g.escaped(6.0, np.array([0])).tolist() == [True]
     g.record(7.0, np.array([0]), np.array([True]))
     assert g.escaped(100.0, np.array([0, 2])).tolist() == [False, False]
-    never = fs.GateEscape(1, None)
+    never = fs.Gate(None, None, 1)
     never.record(0.0, np.array([0]), np.array([False]))
     assert not never.escaped(1e9, np.array([0])).any()
 
@@ -551,7 +551,7 @@ def test_gate_escape_recovers_from_a_kidnap(sim2):
     errs, rejected = {}, {}
     for escape_s in (2.0, None):
         p = dataclasses.replace(MATCHED, gate_escape_s=escape_s)
-        r = run_fastslam(stream, p, 0, kidnap=(t_k, kp))
+        r = run_fastslam(stream, p, 0, hooks=[fs.Kidnap(t_k, kp)])
         last = r.t >= r.t[-1] - 5.0
         errs[escape_s] = path_rmse(r.t[last], r.pose_mean[last], log)
         rejected[escape_s] = r.measurements_rejected
@@ -568,7 +568,7 @@ def _kidnap_case(sim2, with_measurement: bool, proposal: str = "motion"):
     k = int(np.flatnonzero(has_meas == with_measurement)[len(stream) // 4 if not with_measurement else 20])
     kp = np.array([1.0, -2.0, 2.5])
     r = run_fastslam(stream, dataclasses.replace(MATCHED, n_particles=20, proposal=proposal), 0,
-                     kidnap=(float(stream.t[k]) - 1e-4, tuple(kp)))
+                     hooks=[fs.Kidnap(float(stream.t[k]) - 1e-4, kp)])
     return stream, k, kp, r
 
 
@@ -652,7 +652,11 @@ def test_combined_heading_single_precision_path_equals_the_direct_formula(spread
 
 @pytest.mark.parametrize("L", [1, 7, 40])
 def test_propagate_segment_records_what_propagate_computes(L):
-    """Same random numbers, same final poses (bitwise); the estimates are those of the full path."""
+    """The kernel (one particle at a time) against the vectorised motion model, same random numbers.
+
+    ``propagate`` is :func:`fastslam_edu.motion.move_segment` (running sums over arrays);
+    ``propagate_segment`` is the compiled per-particle loop: same poses to rounding.
+    """
     rng = np.random.default_rng(L)
     u = np.column_stack([0.2 + 0.05 * rng.random(L), rng.standard_normal(L)])
     dt = rng.uniform(0.005, 0.03, L)
@@ -663,7 +667,7 @@ def test_propagate_segment_records_what_propagate_computes(L):
     w /= w.sum()
     path = fs.propagate(a, u, dt, SIM.odometry_noise, np.random.default_rng(9))
     mean, best = fs.propagate_segment(b, u, dt, SIM.odometry_noise, np.random.default_rng(9), w)
-    np.testing.assert_array_equal(a.poses, b.poses)
+    np.testing.assert_allclose(a.poses, b.poses, atol=1e-12)
     np.testing.assert_allclose(a.poses[:, :2], path[:, -1, :2], atol=1e-12)
     expected = combined_pose(path, w)
     np.testing.assert_allclose(mean[:, :2], expected[:, :2], atol=1e-12)
@@ -775,7 +779,7 @@ def test_best_pose_and_best_map_are_the_highest_weight_particle(sim2):
         seen[t] = particles.poses[int(np.argmax(w))].copy()
         uneven.append(np.argmax(w) != np.argmin(w))
 
-    r = run_fastslam(stream, p, 3, monitor=record)
+    r = run_fastslam(stream, p, 3, hooks=[fs.Monitor(record)])
     assert r.n_resamples == 0 and len(seen) == len(uneven) and sum(uneven) > 10
     steps = np.searchsorted(r.t, list(seen))
     np.testing.assert_array_equal(r.pose_best[steps], np.array(list(seen.values())))
@@ -783,3 +787,40 @@ def test_best_pose_and_best_map_are_the_highest_weight_particle(sim2):
     assert best != int(np.argmin(r.particles.logw))
     np.testing.assert_array_equal(r.landmarks_best[r.observed], r.particles.mu[best][r.observed])
     assert np.isnan(r.landmarks_best[~r.observed]).all()
+
+
+# --------------------------------------------------------------------------- the step as plain Python
+
+_PLAIN_PYTHON_RUN = """
+import sys
+import numpy as np
+sys.path.insert(0, {tests!r})
+from streams import simulate
+from fastslam_edu.fastslam import FastSLAMParams, run_fastslam
+from fastslam_edu.fastslam_step import update_particles
+from fastslam_edu.sim import SimConfig
+assert not hasattr(update_particles, "py_func"), "numba compiled the step: NUMBA_DISABLE_JIT was not honoured"
+_, _, stream = simulate(4, duration=8.0, outlier_prob=0.1)
+r = run_fastslam(stream, FastSLAMParams(n_particles=12, motion_noise=SimConfig().odometry_noise), 5)
+np.savez({out!r}, pose_mean=r.pose_mean, mu=r.particles.mu, logw=r.particles.logw, rejected=r.measurements_rejected)
+"""
+
+
+def test_the_step_runs_as_plain_python_with_the_same_numbers(tmp_path):
+    """NUMBA_DISABLE_JIT=1 (a fresh interpreter): the same lines run as Python and give the compiled run's numbers."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = tmp_path / "plain.npz"
+    code = _PLAIN_PYTHON_RUN.format(tests=str(Path(__file__).parent), out=str(out))
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=600)
+    plain = np.load(out)
+    _, _, stream = simulate(4, duration=8.0, outlier_prob=0.1)
+    r = run_fastslam(stream, FastSLAMParams(n_particles=12, motion_noise=SIM.odometry_noise), 5)
+    assert int(plain["rejected"]) == r.measurements_rejected
+    np.testing.assert_allclose(plain["pose_mean"], r.pose_mean, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(plain["mu"], r.particles.mu, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(plain["logw"], r.particles.logw, rtol=0, atol=1e-6)

@@ -1,15 +1,13 @@
-"""The vectorised engine against the textbook loop (fastslam_edu.fastslam_loop).
+"""The compiled per-particle filter against an independent loop over particle objects (benchmarks/textbook_loop.py).
 
 Same parameters, same seed: both consume the same random numbers, so they must
 give the same weighted-mean path (N, 3) and the same final particles — poses,
 landmark means and covariances, log weights — to rounding:
 
-* positions: the engine integrates a segment with cumulative sums and computes
-  cos/sin of the headings in float32 (motion.move_segment); a 1e-7 rad rounding
-  of θ moves a ~5 mm step by ~5e-10 m, and over the 6 s log the measured
-  difference is ≤ 4e-9 m: atol 1e-7 m on positions and landmark means, headings
-  compared after wrapping (atol 1e-7 rad; measured ≤ 1.3e-9);
-* covariances: the engine's Joseph form vs the textbook (I − K H) Σ: measured
+* positions: both integrate the same Euler steps, in a different order of
+  operations: atol 1e-7 m on positions and landmark means, headings compared
+  after wrapping (atol 1e-7 rad);
+* covariances: the kernel's symmetric form vs the textbook (I − K H) Σ: measured
   ≤ 3e-13, atol 1e-10;
 * log weights: log N(ν; 0, Q) changes by ν/σ² per metre of pose, ~40 m⁻¹ here
   (ν ≈ 0.1 m, σ_r = 0.05 m), so a 1e-8 m position difference gives ~4e-7 in
@@ -32,9 +30,9 @@ import pytest
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream
 from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
-from fastslam_edu.fastslam_loop import Particle, run_fastslam_loop, update_particle
 from fastslam_edu.motion import MotionNoise
 from fastslam_edu.sim import simulate_dataset
+from textbook_loop import Particle, run_fastslam_loop, update_particle
 from fastslam_edu.weights import weights_from_log
 
 from streams import with_landmark_moved, with_repeated_measurements

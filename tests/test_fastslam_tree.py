@@ -10,7 +10,7 @@ the same 2×2 EKF arithmetic through the trees, so the measured difference is
 The tree filter applies the array engine's own update function to the
 landmarks it reads out of the trees, so what these tests check is the
 storage: reading, writing back exactly what changed, sharing after
-resampling. One test compares with the textbook loop (fastslam_loop), which
+resampling. One test compares with the loop over particle objects (benchmarks/textbook_loop.py), which
 shares no update code with either.
 
 The cases exercise resampling (sometimes / every step), the robust gate with
@@ -29,13 +29,13 @@ import pytest
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream, groundtruth_at
 from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
-from fastslam_edu.fastslam_loop import run_fastslam_loop
 from fastslam_edu.fastslam_tree import TreeParticleSet, run_fastslam_tree, update_trees_with_measurements
 from fastslam_edu.landmark_tree import count_new_nodes, count_nodes, tree_depth
 from fastslam_edu.motion import MotionNoise
 from fastslam_edu.sim import simulate_dataset
 
 from streams import with_repeated_measurements
+from textbook_loop import run_fastslam_loop
 
 TOL = 1e-6
 M = 20
@@ -111,7 +111,7 @@ def test_a_landmark_measured_twice_at_one_instant(world):
 
 
 def test_tree_filter_equals_the_textbook_loop():
-    """An implementation that shares no update code: the per-particle loop of fastslam_loop.
+    """An implementation that shares no update code: the loop over particle objects of benchmarks/textbook_loop.py.
 
     Its tolerances are those of tests/test_fastslam_loop.py (the loop moves
     the particles step by step in double precision, the engine in segments

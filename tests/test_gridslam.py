@@ -185,7 +185,7 @@ def test_same_seed_same_result_and_resampling_follows_the_threshold(world):
     a = run_grid_slam(world.log, p, np.random.default_rng(3), n_scans=30)
     b = run_grid_slam(world.log, p, np.random.default_rng(3), n_scans=30)
     np.testing.assert_array_equal(a.poses, b.poses)
-    never = run_grid_slam(world.log, p.with_(resample_threshold=0.0), np.random.default_rng(3), n_scans=30)
+    never = run_grid_slam(world.log, p.replace(resample_threshold=0.0), np.random.default_rng(3), n_scans=30)
     assert not never.resampled.any()
     assert np.all((a.n_eff < 0.5 * 8) == a.resampled)
 
@@ -281,7 +281,7 @@ def test_bad_input_is_rejected(world):
     with pytest.raises(ValueError, match="resampler"):
         GridSLAMParams(resampler="roulette")
     with pytest.raises(ValueError, match="unknown setting"):
-        GridSLAMParams().with_(particles=3)
+        GridSLAMParams().replace(particles=3)
     for bad in (-0.1, 1.5):
         with pytest.raises(ValueError, match="resample_threshold"):
             GridSLAMParams(resample_threshold=bad)

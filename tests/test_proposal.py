@@ -28,7 +28,7 @@ from hypothesis import strategies as st
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.ekf import gaussian_log_likelihood
 from fastslam_edu.fastslam import FastSLAMParams, ParticleSet, run_fastslam, update_with_measurements
-from fastslam_edu.fastslam_loop import run_fastslam_loop
+from textbook_loop import run_fastslam_loop
 from fastslam_edu.fastslam_tree import TreeParticleSet
 from fastslam_edu.measurement import range_bearing
 from fastslam_edu.motion import MotionNoise, move_segment

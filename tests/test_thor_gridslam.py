@@ -163,13 +163,13 @@ def test_cli_gridslam_thor_beats_odometry(sequence, files, tmp_path, variant):
 
     # the same run by hand, for the path and the map, scored against the truth without alignment
     log = planar_laser_log(read_thor_lidar(files / f"lidar_v{variant}.mat"), *read_thor_joints(files / "joints.mat"))
-    res = run_grid_slam(log, GridSLAMParams().with_(n_particles=10), np.random.default_rng(SEED))
+    res = run_grid_slam(log, GridSLAMParams().replace(n_particles=10), np.random.default_rng(SEED))
     assert int(res.resampled.sum()) == s["resampling_steps"]
     est, odo = rmse_xy(res.estimate, sequence.true_pose), rmse_xy(res.odometry, sequence.true_pose)
     assert est < 0.1 and est < 0.5 * odo, (est, odo)  # measured: 0.050 vs 0.311 m
     # floor returns never reach the map: no occupied cell where the pitched-down beams hit the floor, in the
     # map at the end of the pitched-down window (later level scans would clear such cells again)
-    part = run_grid_slam(log, GridSLAMParams().with_(n_particles=10), np.random.default_rng(SEED), n_scans=N_DOWN_END)
+    part = run_grid_slam(log, GridSLAMParams().replace(n_particles=10), np.random.default_rng(SEED), n_scans=N_DOWN_END)
     cells = floor_cells(sequence, part.grid)
     assert len(cells) > 100
     p = part.grid.probability()[cells[:, 0], cells[:, 1]]
@@ -180,7 +180,7 @@ def test_floor_check_can_fail_without_the_floor_filter(sequence, files):
     """Control: with the floor filter off and the band reaching below the floor, floor cells become occupied."""
     log = planar_laser_log(read_thor_lidar(files / "lidar_v2.mat"), *read_thor_joints(files / "joints.mat"),
                            z_floor=None, band=(-1.0, 2.0))
-    res = run_grid_slam(log, GridSLAMParams().with_(n_particles=10), np.random.default_rng(SEED), n_scans=N_DOWN_END)
+    res = run_grid_slam(log, GridSLAMParams().replace(n_particles=10), np.random.default_rng(SEED), n_scans=N_DOWN_END)
     cells = floor_cells(sequence, res.grid)
     n_occ = int((res.grid.probability()[cells[:, 0], cells[:, 1]] > 0.5).sum())
     assert n_occ >= 10, n_occ  # measured: 20 (0 with the filter on)

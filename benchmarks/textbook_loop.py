@@ -1,4 +1,4 @@
-"""FastSLAM 1.0, one particle at a time: the textbook form, for teaching and testing.
+"""FastSLAM 1.0 as plain Python over particle objects: an independent reference, for tests and benchmarks.
 
 This is the algorithm ``FastSLAM_1`` of the FastSLAM notes (Montemerlo et al. 2002;
 Thrun, Burgard, Fox, *Probabilistic Robotics*, table 13.1) written with plain
@@ -11,10 +11,13 @@ Python loops over particles and landmarks, one :class:`Particle` object each::
             else:             EKF update of (μ_j, Σ_j), w *= N(ν; 0, Q)
     resample if N_eff < threshold · M
 
-It consumes the random numbers in the same order as the vectorised engine
-(:mod:`fastslam_edu.fastslam`), so both give the same result for the same
-seed — the test that the fast code computes what the textbook says.
-It is ~100× slower; use it to read, not to run long logs.
+It consumes the random numbers in the same order as the package's filter
+(:mod:`fastslam_edu.fastslam`, whose step is the compiled per-particle kernel of
+:mod:`fastslam_edu.fastslam_step`), so both give the same result for the same
+seed: ``tests/test_fastslam_loop.py`` checks the kernel against this code, which
+uses the textbook numpy EKF (:func:`fastslam_edu.ekf.update_landmark_one`, itself
+checked against filterpy) and the vectorised motion model. The speed benchmark
+uses it as a yardstick of the machine (``benchmarks/fastslam_mrclam.py``).
 """
 
 from __future__ import annotations
@@ -24,12 +27,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .datasets.log import EventStream
-from .ekf import initialise_landmark, innovation_statistics, update_landmark_one
-from .fastslam import FastSLAMParams, GateEscape, _segments, evidence_fractions
-from .motion import move
-from .resampling import get_resampler
-from .weights import effective_sample_size, weights_from_log
+from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.ekf import initialise_landmark, innovation_statistics, update_landmark_one
+from fastslam_edu.fastslam import FastSLAMParams, Gate, _segments, evidence_fractions
+from fastslam_edu.motion import move
+from fastslam_edu.resampling import get_resampler
+from fastslam_edu.weights import effective_sample_size, weights_from_log
 
 
 @dataclass
@@ -118,7 +121,7 @@ def run_fastslam_loop(
             p.count = {k: 1 for k in range(len(landmarks))}
     u = np.asarray(stream.u, dtype=float) * np.asarray(params.odometry_scale, dtype=float)  # as the engine
     path = np.empty((len(stream), 3))
-    escapes = GateEscape(stream.n_landmarks, params.gate_escape_s)  # the escape from the gate, as the engine
+    escapes = Gate(params.gate_chi2, params.gate_escape_s, stream.n_landmarks)  # the escape from the gate, as the engine
     last_seen = np.full(stream.n_landmarks, -np.inf)
     for s, e in _segments(stream):
         eps = rng.standard_normal((M, e - s + 1, params.motion_noise.n_draws))
