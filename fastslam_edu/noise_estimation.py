@@ -11,7 +11,7 @@ Measurement noise (:func:`measurement_residuals`, :func:`measurement_noise`)
 --------------------------------------------------------------------------
 1. For every landmark measurement ``z_j = (r_j, φ_j)`` of subject ``s_j`` at
    time ``t_j``, take the groundtruth pose ``x(t_j)`` interpolated linearly
-   (heading unwrapped first, :func:`fastslam_edu.metrics.interpolate_poses`)
+   (heading unwrapped first, :func:`fastslam_edu.se2.interpolate_poses`)
    and the surveyed landmark ``m_{s_j}``; predict ``ẑ_j = h(x(t_j), m_{s_j})``
    (:func:`fastslam_edu.measurement.range_bearing`).
 2. Residual ``e_j = (r_j − r̂_j, wrap(φ_j − φ̂_j))``.
@@ -67,7 +67,7 @@ from scipy.stats import median_abs_deviation
 from fastslam_edu.angles import wrap_angle
 from fastslam_edu.datasets.log import Dataset, RobotLog
 from fastslam_edu.measurement import landmark_from_measurement, range_bearing
-from fastslam_edu.metrics import interpolate_poses
+from fastslam_edu.se2 import interpolate_poses
 from fastslam_edu.motion import MotionNoise, move_segment
 
 #: Default largest groundtruth gap [s] to interpolate over (1 Hz data have 1 s gaps; a removed glitch makes 2 s).

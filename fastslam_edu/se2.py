@@ -27,6 +27,7 @@ import numpy as np
 from fastslam_edu.angles import wrap_angle
 
 __all__ = [
+    "interpolate_poses",
     "compose",
     "inverse",
     "relative",
@@ -194,3 +195,79 @@ def compose_increments(x0, increments) -> np.ndarray:
     steps = np.stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1]], axis=-1)
     xy = x0[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
     return np.column_stack([xy, _wrapped(theta)])
+
+
+#: Query times this far [s] outside the groundtruth span get its first / last pose (:func:`interpolate_poses`).
+DEFAULT_TIME_TOLERANCE = 0.5
+
+
+def _float_array(a, name: str) -> np.ndarray:
+    try:
+        return np.asarray(a, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be an array of real numbers, got {a!r}") from exc
+
+
+def interpolate_poses(t_query, t_gt, poses_gt, *, tolerance: float = DEFAULT_TIME_TOLERANCE) -> np.ndarray:
+    """Groundtruth poses at arbitrary times, by linear interpolation.
+
+    ``x`` and ``y`` are interpolated linearly. ``θ`` is first unwrapped (so
+    consecutive samples differ by less than π), interpolated, then wrapped to
+    (-π, π]: halfway between 3.1 and -3.1 rad is ±π, not 0.
+
+    Parameters
+    ----------
+    t_query : array_like, shape (n,)
+        Times [s] at which poses are wanted.
+    t_gt : array_like, shape (T,)
+        Groundtruth times [s], strictly increasing.
+    poses_gt : array_like, shape (T, 3)
+        Groundtruth poses ``(x [m], y [m], θ [rad])``.
+    tolerance : float, default 0.5
+        Query times up to ``tolerance`` seconds outside ``[t_gt[0], t_gt[-1]]``
+        get the first / last pose; further out is an error.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Interpolated poses, ``θ`` in (-π, π].
+
+    Raises
+    ------
+    ValueError
+        If query times fall outside the groundtruth span by more than
+        ``tolerance`` (the message states the span), if ``t_gt`` is not
+        strictly increasing, or on shape errors / NaN.
+    """
+    tq = _float_array(t_query, "t_query")
+    tg = _float_array(t_gt, "t_gt")
+    pg = _float_array(poses_gt, "poses_gt")
+    if tq.ndim != 1:
+        raise ValueError(f"t_query must be 1-D, got shape {tq.shape}")
+    if tg.ndim != 1 or tg.size == 0 or pg.shape != (tg.size, 3):
+        raise ValueError(f"t_gt must have shape (T,) with T ≥ 1 and poses_gt shape (T, 3), got {tg.shape} and {pg.shape}")
+    for name, a in (("t_query", tq), ("t_gt", tg), ("poses_gt", pg)):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} contains {int(np.count_nonzero(~np.isfinite(a)))} NaN or inf value(s)")
+    steps = np.diff(tg)
+    if np.any(steps <= 0):
+        j = int(np.flatnonzero(steps <= 0)[0])
+        raise ValueError(
+            f"t_gt must be strictly increasing, but t_gt[{j}] = {float(tg[j])!r} "
+            f"and t_gt[{j + 1}] = {float(tg[j + 1])!r}"
+        )
+    outside = (tq < tg[0] - tolerance) | (tq > tg[-1] + tolerance)
+    if np.any(outside):
+        raise ValueError(
+            f"{int(np.count_nonzero(outside))} query time(s) fall outside the groundtruth span "
+            f"[{tg[0]:.3f}, {tg[-1]:.3f}] s by more than the tolerance {tolerance} s "
+            f"(queries span [{tq.min():.3f}, {tq.max():.3f}] s)"
+        )
+    theta = np.unwrap(pg[:, 2])
+    return np.column_stack(
+        [
+            np.interp(tq, tg, pg[:, 0]),
+            np.interp(tq, tg, pg[:, 1]),
+            wrap_angle(np.interp(tq, tg, theta)),
+        ]
+    )

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
+from fastslam_edu.se2 import interpolate_poses
 from fastslam_edu.metrics import (
     align_se2,
     apply_se2,
-    interpolate_poses,
     landmark_errors,
     landmark_errors_aligned,
     mean_landmark_error,

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ..angles import wrap_angle
-from ..metrics import interpolate_poses
+from ..se2 import interpolate_poses
 from .log import EventStream, RobotLog
 
 RATES = ("full", "1hz")
