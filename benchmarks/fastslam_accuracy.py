@@ -6,7 +6,7 @@ five robots of Dataset 6 — and Dataset 1 robot 1 (1 Hz groundtruth too) at ful
 RMSE, mean landmark error and aligned mean landmark error, next to the targets
 (≤ 0.5 m, ≤ 0.5 m, ≤ 0.25 m). Dataset 1's robots 3–5, which have no
 groundtruth, are run too (no tuning was ever done on them): from an initial pose found from their first
-sightings of the surveyed landmarks (:mod:`fastslam_edu.initial_pose`, decimetres and degrees off),
+sightings of the surveyed landmarks (:mod:`fastslam_edu.landmark.initial_pose`, decimetres and degrees off),
 scored by their maps — the aligned landmark error does not depend on the start. Prints a table and writes JSON. ``--proposal
 fastslam2`` runs FastSLAM 2.0's proposal instead of 1.0's (``FastSLAMParams.proposal``).
 
@@ -36,9 +36,9 @@ from machine import machine_info  # noqa: E402
 
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.datasets.events import event_stream  # noqa: E402
-from fastslam_edu.experiment import load_mrclam, summarize  # noqa: E402
-from fastslam_edu.fastslam import PROPOSALS, FastSLAMParams, run_fastslam  # noqa: E402
-from fastslam_edu.initial_pose import initial_pose_from_landmarks  # noqa: E402
+from fastslam_edu.app.experiment import load_mrclam, summarize  # noqa: E402
+from fastslam_edu.landmark.fastslam import PROPOSALS, FastSLAMParams, run_fastslam  # noqa: E402
+from fastslam_edu.landmark.initial_pose import initial_pose_from_landmarks  # noqa: E402
 
 ROBOTS = [(1, 2), (6, 1), (6, 2), (6, 3), (6, 4), (6, 5)]  # the issue's targets
 EXTRA = [(1, 1)]  # also has groundtruth (1 Hz), not named by the targets: a check of generalisation

@@ -36,8 +36,8 @@ from machine import machine_info  # noqa: E402
 
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.datasets.events import event_stream  # noqa: E402
-from fastslam_edu.experiment import load_mrclam, summarize  # noqa: E402
-from fastslam_edu.fastslam import FastSLAMParams, run_fastslam  # noqa: E402
+from fastslam_edu.app.experiment import load_mrclam, summarize  # noqa: E402
+from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam  # noqa: E402
 from textbook_loop import run_fastslam_loop  # noqa: E402
 
 REFERENCE_LOOP_SECONDS = 11.9  # the write-up's code, 1489-step loop, 100 particles

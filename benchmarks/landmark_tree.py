@@ -40,10 +40,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
-from fastslam_edu.fastslam import ParticleSet  # noqa: E402
-from fastslam_edu.fastslam_tree import TreeParticleSet  # noqa: E402
-from fastslam_edu.landmark_tree import LandmarkTree, count_new_nodes, tree_depth  # noqa: E402
-from fastslam_edu.resampling import systematic  # noqa: E402
+from fastslam_edu.landmark.fastslam import ParticleSet  # noqa: E402
+from fastslam_edu.landmark.fastslam_tree import TreeParticleSet  # noqa: E402
+from fastslam_edu.landmark.tree import LandmarkTree, count_new_nodes, tree_depth  # noqa: E402
+from fastslam_edu.core.resampling import systematic  # noqa: E402
 
 K_MAIN = [100, 1_000, 10_000, 100_000]
 K_BETWEEN = [15, 200, 300, 500, 2_000, 3_000, 5_000, 20_000, 50_000]

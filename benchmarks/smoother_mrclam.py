@@ -5,7 +5,7 @@ the engine's targets name; Dataset 1 robot 1; Dataset 1's robots 3–5 without g
 their maps), at full rate with the default ``FastSLAMParams``:
 
 * the filter, M = 100, seeds 0 … N-1: the median path RMSE, landmark error and aligned landmark error;
-* :func:`fastslam_edu.smoother.smooth` with the same model, started from the filter's run with seed 0:
+* :func:`fastslam_edu.landmark.smoother.smooth` with the same model, started from the filter's run with seed 0:
   the same three figures, the landmarks' standard deviation from the Laplace approximation (how well
   the data fix them in the absolute frame), iterations, seconds; and started from dead reckoning, to
   show where that start is enough (least squares finds the optimum nearest its start).
@@ -32,9 +32,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fastslam_accuracy import EXTRA, NO_GROUNDTRUTH, ROBOTS, TARGETS, _load, _run  # noqa: E402
 from machine import machine_info  # noqa: E402
 
-from fastslam_edu.experiment import summarize_smoother  # noqa: E402
-from fastslam_edu.fastslam import FastSLAMParams, run_fastslam  # noqa: E402
-from fastslam_edu.smoother import smooth  # noqa: E402
+from fastslam_edu.app.experiment import summarize_smoother  # noqa: E402
+from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam  # noqa: E402
+from fastslam_edu.landmark.smoother import smooth  # noqa: E402
 
 KEYS = list(TARGETS)
 

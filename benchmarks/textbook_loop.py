@@ -12,10 +12,10 @@ Python loops over particles and landmarks, one :class:`Particle` object each::
     resample if N_eff < threshold · M
 
 It consumes the random numbers in the same order as the package's filter
-(:mod:`fastslam_edu.fastslam`, whose step is the compiled per-particle kernel of
-:mod:`fastslam_edu.fastslam_step`), so both give the same result for the same
+(:mod:`fastslam_edu.landmark.fastslam`, whose step is the compiled per-particle kernel of
+:mod:`fastslam_edu.landmark.fastslam_step`), so both give the same result for the same
 seed: ``tests/test_fastslam_loop.py`` checks the kernel against this code, which
-uses the textbook numpy EKF (:func:`fastslam_edu.ekf.update_landmark_one`, itself
+uses the textbook numpy EKF (:func:`fastslam_edu.core.ekf.update_landmark_one`, itself
 checked against filterpy) and the vectorised motion model. The speed benchmark
 uses it as a yardstick of the machine (``benchmarks/fastslam_mrclam.py``).
 """
@@ -28,11 +28,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.ekf import initialise_landmark, innovation_statistics, update_landmark_one
-from fastslam_edu.fastslam import FastSLAMParams, Gate, _segments, evidence_fractions
-from fastslam_edu.motion import move
-from fastslam_edu.resampling import get_resampler
-from fastslam_edu.weights import effective_sample_size, weights_from_log
+from fastslam_edu.core.ekf import initialise_landmark, innovation_statistics, update_landmark_one
+from fastslam_edu.landmark.fastslam import FastSLAMParams, Gate, _segments, evidence_fractions
+from fastslam_edu.core.motion import move
+from fastslam_edu.core.resampling import get_resampler
+from fastslam_edu.core.weights import effective_sample_size, weights_from_log
 
 
 @dataclass
@@ -58,7 +58,7 @@ def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_
     then re-initialised from the new sighting at no cost in weight (one of its
     two sightings is wrong). The measurements no particle explains never get
     here (:func:`is_explained`). ``power`` β: the weight grows by β · log N(ν; 0, Q)
-    (:func:`fastslam_edu.fastslam.evidence_fractions`).
+    (:func:`fastslam_edu.landmark.fastslam.evidence_fractions`).
     """
     if j not in p.landmarks:
         p.landmarks[j] = initialise_landmark(p.pose, z, R)
@@ -110,7 +110,7 @@ def run_fastslam_loop(
         raise ValueError('the loop reference runs mode "slam" or "localize"')
     if params.proposal != "motion":
         raise ValueError("the loop reference is FastSLAM 1.0 only (proposal=\"motion\"); "
-                         "FastSLAM 2.0's one-particle form is fastslam_edu.proposal.improved_pose_one")
+                         "FastSLAM 2.0's one-particle form is fastslam_edu.landmark.proposal.improved_pose_one")
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
     x0 = np.asarray(stream.x0 if x0 is None else x0, dtype=float)
     M = params.n_particles

@@ -8,8 +8,8 @@ import numpy as np
 
 from fastslam_edu.datasets.events import event_stream
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.metrics import trajectory_errors
-from fastslam_edu.sim import simulate_dataset
+from fastslam_edu.evaluation.metrics import trajectory_errors
+from fastslam_edu.datasets.sim import simulate_dataset
 
 
 def simulate(seed: int, duration: float = 40.0, **overrides):

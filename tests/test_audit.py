@@ -1,4 +1,4 @@
-"""Tests of fastslam_edu.datasets.audit (landmark table vs its own measurements).
+"""Tests of fastslam_edu.evaluation.audit (landmark table vs its own measurements).
 
 Reference: the simulator's truth. Its landmark table is exact, so every
 landmark's median implied position lies within a few centimetres of its table
@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from fastslam_edu.datasets.audit import COLUMNS, apply_landmark_audit, audit_landmarks, landmark_swaps
-from fastslam_edu.sim import simulate_dataset
+from fastslam_edu.evaluation.audit import COLUMNS, apply_landmark_audit, audit_landmarks, landmark_swaps
+from fastslam_edu.datasets.sim import simulate_dataset
 
 
 
@@ -133,7 +133,7 @@ def test_no_groundtruth_means_no_audit(data, pair):
 def test_a_robot_without_groundtruth_gets_the_table_checked_by_the_others(tmp_path):
     """load_mrclam audits the dataset's table with the robots that have groundtruth (Dataset 1, robots 3-5)."""
     from fastslam_edu.datasets.mrclam import write_dataset
-    from fastslam_edu.experiment import load_mrclam
+    from fastslam_edu.app.experiment import load_mrclam
 
     two = simulate_dataset(3, duration=40.0, n_robots=2)
     a, b = sorted(two.robots[1].measurements["subject"].value_counts().index[:2].astype(int).tolist())

@@ -1,4 +1,4 @@
-"""Tests of the command line ``fastslam-edu run`` (fastslam_edu.cli) on a simulated dataset.
+"""Tests of the command line ``fastslam-edu run`` (fastslam_edu.app.cli) on a simulated dataset.
 
 The dataset is simulated and written in the MR.CLAM format with
 ``write_dataset``; the figures in the JSON are checked against what can be
@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fastslam_edu.cli import main
+from fastslam_edu.app.cli import main
 from fastslam_edu.datasets.mrclam import write_dataset
-from fastslam_edu.sim import simulate_dataset
+from fastslam_edu.datasets.sim import simulate_dataset
 
 KEYS = (
     "landmark_error_mean_m", "landmark_error_aligned_mean_m", "path_rmse_m", "path_rmse_aligned_m",

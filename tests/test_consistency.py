@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from fastslam_edu.consistency import (
+from fastslam_edu.evaluation.consistency import (
     SpreadRecorder,
     align_pose,
     nees,
@@ -17,8 +17,8 @@ from fastslam_edu.consistency import (
     simulator_params,
 )
 from fastslam_edu.datasets.events import groundtruth_at
-from fastslam_edu.fastslam import Monitor, combined_pose, run_fastslam
-from fastslam_edu.sim import SimConfig
+from fastslam_edu.landmark.fastslam import Monitor, combined_pose, run_fastslam
+from fastslam_edu.datasets.sim import SimConfig
 from streams import simulate
 
 
@@ -174,7 +174,7 @@ def test_simulator_params_take_the_simulators_noise():
 
 
 def test_spread_recorder_reads_tree_backed_particles_too():
-    from fastslam_edu.fastslam_tree import TreeParticleSet
+    from fastslam_edu.landmark.fastslam_tree import TreeParticleSet
 
     data, log, stream = simulate(1, duration=10.0)
     params = simulator_params(n_particles=20)

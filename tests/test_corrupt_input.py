@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 import scipy.io
 
-from fastslam_edu.cli import main
+from fastslam_edu.app.cli import main
 from fastslam_edu.datasets.laser import (
     read_carmen,
     read_intel_json,

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import multivariate_normal
 
-from fastslam_edu.ekf import (
+from fastslam_edu.core.ekf import (
     gaussian_log_likelihood,
     initialise_landmark,
     ekf_initialise,

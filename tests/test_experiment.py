@@ -1,4 +1,4 @@
-"""Parameter sets as values (compare, hash, copy, JSON) and fastslam_edu.experiment's table of them."""
+"""Parameter sets as values (compare, hash, copy, JSON) and fastslam_edu.app.experiment's table of them."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from fastslam_edu.experiment import params_table
-from fastslam_edu.fastslam import FastSLAMParams
-from fastslam_edu.gridslam import GridSLAMParams
-from fastslam_edu.motion import MotionNoise
+from fastslam_edu.app.experiment import params_table
+from fastslam_edu.landmark.fastslam import FastSLAMParams
+from fastslam_edu.grid.gridslam import GridSLAMParams
+from fastslam_edu.core.motion import MotionNoise
 
 
 def test_params_table_spells_out_every_field():

@@ -1,12 +1,12 @@
-"""Tests of fastslam_edu.fastslam, the vectorised FastSLAM 1.0 engine.
+"""Tests of fastslam_edu.landmark.fastslam, the vectorised FastSLAM 1.0 engine.
 
 Independent references used here:
 
-* the simulator (:mod:`fastslam_edu.sim`) with known truth and known noise, run
+* the simulator (:mod:`fastslam_edu.datasets.sim`) with known truth and known noise, run
   with matching filter noise: landmark and path errors against the truth, and
-  dead reckoning (the odometry integrated with :func:`fastslam_edu.motion.propagate`,
+  dead reckoning (the odometry integrated with :func:`fastslam_edu.core.motion.propagate`,
   written out here) as the baseline the filter must beat;
-* the textbook one-landmark EKF :func:`fastslam_edu.ekf.update_landmark_one`
+* the textbook one-landmark EKF :func:`fastslam_edu.core.ekf.update_landmark_one`
   (``np.linalg.inv`` and ``(I - K H) Σ``) for what one update must give;
 * closed forms: the effective sample size ``1 / Σ w²``, the circular mean of two
   headings ``α ± δ``, the mixture covariance ``Σ w (Σ_m + μ_m μ_mᵀ) - μ̄ μ̄ᵀ``;
@@ -28,12 +28,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from fastslam_edu import fastslam as fs
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.landmark import fastslam as fs
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.events import groundtruth_at
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.ekf import update_landmark_one
-from fastslam_edu.fastslam import (
+from fastslam_edu.core.ekf import update_landmark_one
+from fastslam_edu.landmark.fastslam import (
     FastSLAMParams,
     ParticleSet,
     combined_map,
@@ -43,9 +43,9 @@ from fastslam_edu.fastslam import (
     update_with_measurement,
     update_with_measurements,
 )
-from fastslam_edu.metrics import landmark_errors
-from fastslam_edu.motion import propagate
-from fastslam_edu.sim import SimConfig
+from fastslam_edu.evaluation.metrics import landmark_errors
+from fastslam_edu.core.motion import propagate
+from fastslam_edu.datasets.sim import SimConfig
 from streams import path_rmse, simulate
 
 SIM = SimConfig()
@@ -654,7 +654,7 @@ def test_combined_heading_single_precision_path_equals_the_direct_formula(spread
 def test_propagate_segment_records_what_propagate_computes(L):
     """The kernel (one particle at a time) against the vectorised motion model, same random numbers.
 
-    ``propagate`` is :func:`fastslam_edu.motion.move_segment` (running sums over arrays);
+    ``propagate`` is :func:`fastslam_edu.core.motion.move_segment` (running sums over arrays);
     ``propagate_segment`` is the compiled per-particle loop: same poses to rounding.
     """
     rng = np.random.default_rng(L)
@@ -796,9 +796,9 @@ import sys
 import numpy as np
 sys.path.insert(0, {tests!r})
 from streams import simulate
-from fastslam_edu.fastslam import FastSLAMParams, run_fastslam
-from fastslam_edu.fastslam_step import update_particles
-from fastslam_edu.sim import SimConfig
+from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
+from fastslam_edu.landmark.fastslam_step import update_particles
+from fastslam_edu.datasets.sim import SimConfig
 assert not hasattr(update_particles, "py_func"), "numba compiled the step: NUMBA_DISABLE_JIT was not honoured"
 _, _, stream = simulate(4, duration=8.0, outlier_prob=0.1)
 r = run_fastslam(stream, FastSLAMParams(n_particles=12, motion_noise=SimConfig().odometry_noise), 5)

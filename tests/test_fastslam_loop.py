@@ -27,13 +27,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream
-from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
-from fastslam_edu.motion import MotionNoise
-from fastslam_edu.sim import simulate_dataset
+from fastslam_edu.landmark.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
+from fastslam_edu.core.motion import MotionNoise
+from fastslam_edu.datasets.sim import simulate_dataset
 from textbook_loop import Particle, run_fastslam_loop, update_particle
-from fastslam_edu.weights import weights_from_log
+from fastslam_edu.core.weights import weights_from_log
 
 from streams import with_landmark_moved, with_repeated_measurements
 

@@ -1,4 +1,4 @@
-"""FastSLAM with tree maps (fastslam_edu.fastslam_tree) against the array engine, on the simulator.
+"""FastSLAM with tree maps (fastslam_edu.landmark.fastslam_tree) against the array engine, on the simulator.
 
 Both filters draw the same random numbers (same propagate, same resampling)
 and apply the measurements of an instant with the same semantics, so for the
@@ -26,13 +26,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream, groundtruth_at
-from fastslam_edu.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
-from fastslam_edu.fastslam_tree import TreeParticleSet, run_fastslam_tree, update_trees_with_measurements
-from fastslam_edu.landmark_tree import count_new_nodes, count_nodes, tree_depth
-from fastslam_edu.motion import MotionNoise
-from fastslam_edu.sim import simulate_dataset
+from fastslam_edu.landmark.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
+from fastslam_edu.landmark.fastslam_tree import TreeParticleSet, run_fastslam_tree, update_trees_with_measurements
+from fastslam_edu.landmark.tree import count_new_nodes, count_nodes, tree_depth
+from fastslam_edu.core.motion import MotionNoise
+from fastslam_edu.datasets.sim import simulate_dataset
 
 from streams import with_repeated_measurements
 from textbook_loop import run_fastslam_loop

@@ -1,4 +1,4 @@
-"""Grid SLAM (fastslam_edu.gridslam): pieces against closed forms and the grid module, loop == vectorised, known truth."""
+"""Grid SLAM (fastslam_edu.grid.gridslam): pieces against closed forms and the grid module, loop == vectorised, known truth."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from fastslam_edu.grid import OccupancyGrid, bresenham, map_correlation, scan_endpoints
-from fastslam_edu.gridslam import (
+from fastslam_edu.grid.occupancy import OccupancyGrid, bresenham, map_correlation, scan_endpoints
+from fastslam_edu.grid.gridslam import (
     GridSLAMParams,
     ancestral_path,
     correlation,
@@ -25,8 +25,8 @@ from fastslam_edu.gridslam import (
     scan_match,
     update_maps,
 )
-from fastslam_edu.relations import reference_errors
-from fastslam_edu.sim import simulate_laser_world
+from fastslam_edu.evaluation.relations import reference_errors
+from fastslam_edu.datasets.sim import simulate_laser_world
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Tests of fastslam_edu.initial_pose (the start pose from the first sightings of surveyed landmarks)."""
+"""Tests of fastslam_edu.landmark.initial_pose (the start pose from the first sightings of surveyed landmarks)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.events import groundtruth_at
-from fastslam_edu.initial_pose import initial_pose_from_landmarks
-from fastslam_edu.motion import MotionNoise
-from fastslam_edu.sim import simulate_dataset
+from fastslam_edu.landmark.initial_pose import initial_pose_from_landmarks
+from fastslam_edu.core.motion import MotionNoise
+from fastslam_edu.datasets.sim import simulate_dataset
 
 
 def _start_error(data, log, ip):

@@ -1,4 +1,4 @@
-"""The persistent landmark tree (fastslam_edu.landmark_tree) against a plain dict model.
+"""The persistent landmark tree (fastslam_edu.landmark.tree) against a plain dict model.
 
 * A hypothesis state machine applies random ``set``s to random *old* versions
   and checks every version ever made against its own dict snapshot: gets, len,
@@ -26,7 +26,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, precondition, rule
 
-from fastslam_edu.landmark_tree import (
+from fastslam_edu.landmark.tree import (
     LandmarkTree,
     Landmark,
     count_new_nodes,

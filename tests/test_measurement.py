@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fastslam_edu.measurement import (
+from fastslam_edu.core.measurement import (
     innovation,
     jacobian_inverse,
     jacobian_landmark,

@@ -1,4 +1,4 @@
-"""Tests of fastslam_edu.metrics.
+"""Tests of fastslam_edu.evaluation.metrics.
 
 Independent references: known rigid motions (noise-free: exact recovery; noisy:
 statistical bound), a brute-force search over the rotation angle, the 2-D
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from fastslam_edu.se2 import interpolate_poses
-from fastslam_edu.metrics import (
+from fastslam_edu.core.se2 import interpolate_poses
+from fastslam_edu.evaluation.metrics import (
     align_se2,
     apply_se2,
     landmark_errors,

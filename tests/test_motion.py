@@ -1,4 +1,4 @@
-"""Tests of fastslam_edu.motion: closed forms, the exact arc, and the rate test.
+"""Tests of fastslam_edu.core.motion: closed forms, the exact arc, and the rate test.
 
 The rate test is the point of the module: with noise given as densities the
 spread of the pose after one second is the same at 1 Hz, 10 Hz and 67 Hz, and
@@ -13,8 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from fastslam_edu.angles import wrap_angle
-from fastslam_edu.motion import (
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.core.motion import (
     MotionNoise,
     move,
     move_segment,

@@ -1,4 +1,4 @@
-"""Tests of fastslam_edu.noise_estimation against simulations with known noise.
+"""Tests of fastslam_edu.evaluation.noise_estimation against simulations with known noise.
 
 References: the simulator's stated noise (odometry densities σ_v, σ_ω, range
 and bearing standard deviations, outlier probability) with sampling bounds;
@@ -19,11 +19,11 @@ import pandas as pd
 import pytest
 from scipy.stats import norm
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.events import clean_1hz_table
 from fastslam_edu.datasets.log import Dataset, RobotLog
-from fastslam_edu.motion import MotionNoise, propagate
-from fastslam_edu.noise_estimation import (
+from fastslam_edu.core.motion import MotionNoise, propagate
+from fastslam_edu.evaluation.noise_estimation import (
     dead_reckoning,
     estimate_noise,
     fit_random_walk,
@@ -40,7 +40,7 @@ from fastslam_edu.noise_estimation import (
     robust_std,
     usable_groundtruth,
 )
-from fastslam_edu.sim import simulate_dataset
+from fastslam_edu.datasets.sim import simulate_dataset
 
 ODOMETRY = MotionNoise(sigma_v=0.02, sigma_omega=0.05)
 RANGE_STD, BEARING_STD = 0.05, 0.02

@@ -1,8 +1,8 @@
-"""Tests of fastslam_edu.proposal, FastSLAM 2.0's proposal, and of the engine's ``proposal="fastslam2"``.
+"""Tests of fastslam_edu.landmark.proposal, FastSLAM 2.0's proposal, and of the engine's ``proposal="fastslam2"``.
 
 Independent references used here:
 
-* Monte Carlo of the motion model (:func:`fastslam_edu.motion.move_segment` with
+* Monte Carlo of the motion model (:func:`fastslam_edu.core.motion.move_segment` with
   drawn noise): the end pose's sample mean and covariance against
   :func:`segment_motion`'s linearisation (noise small enough to be linear);
 * the paper's information form :math:`\\Sigma_x = (G^\\top Q^{-1} G + P^{-1})^{-1}`
@@ -25,14 +25,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fastslam_edu.angles import wrap_angle
-from fastslam_edu.ekf import gaussian_log_likelihood
-from fastslam_edu.fastslam import FastSLAMParams, ParticleSet, run_fastslam, update_with_measurements
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.core.ekf import gaussian_log_likelihood
+from fastslam_edu.landmark.fastslam import FastSLAMParams, ParticleSet, run_fastslam, update_with_measurements
 from textbook_loop import run_fastslam_loop
-from fastslam_edu.fastslam_tree import TreeParticleSet
-from fastslam_edu.measurement import range_bearing
-from fastslam_edu.motion import MotionNoise, move_segment
-from fastslam_edu.proposal import (
+from fastslam_edu.landmark.fastslam_tree import TreeParticleSet
+from fastslam_edu.core.measurement import range_bearing
+from fastslam_edu.core.motion import MotionNoise, move_segment
+from fastslam_edu.landmark.proposal import (
     improved_pose,
     improved_pose_one,
     motion_prediction,
@@ -154,7 +154,7 @@ def test_kalman_form_equals_the_information_form_across_the_bearing_cut():
 def test_the_perturbation_has_the_innovation_covariance_when_it_is_correlated():
     """x̂ = x̄, ε = e₁, e₂: the moves D = K L satisfy D Dᵀ = K Q Kᵀ with K = Σ_x Gᵀ Q⁻¹ and Q = H Σ Hᵀ + R
     built from measurement's Jacobians (range and bearing correlated 0.9 through Σ, so L is not diagonal)."""
-    from fastslam_edu.measurement import jacobian_landmark, jacobian_pose
+    from fastslam_edu.core.measurement import jacobian_landmark, jacobian_pose
 
     x_bar = np.array([0.1, 0.2, 0.3])
     P = np.diag([0.03, 0.02, 0.04]) ** 2
@@ -207,7 +207,7 @@ def test_weight_is_the_likelihood_with_the_pose_integrated_out():
     x = x_bar + rng.standard_normal((400_000, 3)) @ np.linalg.cholesky(P).T
     nu = z - range_bearing(x, mu)
     nu[:, 1] = wrap_angle(nu[:, 1])
-    from fastslam_edu.measurement import jacobian_landmark
+    from fastslam_edu.core.measurement import jacobian_landmark
 
     H = jacobian_landmark(x, mu)
     ll = gaussian_log_likelihood(nu, H @ Sigma @ np.swapaxes(H, 1, 2) + R)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from fastslam_edu import cli
+from fastslam_edu.app import cli
 from fastslam_edu.datasets import (REGISTRY, DataFetchError, DataFile, DatasetEntry, dataset_path, fetch_datasets,
                                    mrclam_path)
 from fastslam_edu.datasets import registry as registry_module
@@ -382,7 +382,7 @@ def test_unknown_name_exit_2(capsys):
 
 
 @pytest.mark.parametrize("command", [[sys.executable, "-m", "fastslam_edu.datasets.registry"],
-                                     [sys.executable, "-m", "fastslam_edu.cli", "data"]])
+                                     [sys.executable, "-m", "fastslam_edu.app.cli", "data"]])
 def test_real_command_lines_fail_in_one_line_when_the_mirror_is_down(command, tmp_path, closed_port_url):
     """The installed entry points, in a fresh interpreter, on the real registry with an unreachable mirror."""
     env = os.environ | {"FASTSLAM_EDU_DATA": str(tmp_path / "data"), "FASTSLAM_EDU_MIRROR": closed_port_url}

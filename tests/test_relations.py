@@ -1,4 +1,4 @@
-"""Kümmerle et al.'s relation error (fastslam_edu.relations): closed forms, matrices, time matching, the summed-up scores."""
+"""Kümmerle et al.'s relation error (fastslam_edu.evaluation.relations): closed forms, matrices, time matching, the summed-up scores."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from fastslam_edu.relations import match_times, reference_errors, relation_errors, score_trajectory
+from fastslam_edu.evaluation.relations import match_times, reference_errors, relation_errors, score_trajectory
 
 
 def T(p):

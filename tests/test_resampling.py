@@ -1,4 +1,4 @@
-"""Tests of fastslam_edu.resampling.
+"""Tests of fastslam_edu.core.resampling.
 
 Independent references: the definition E[N_i] = n w_i (unbiasedness, checked
 by simulation with stated bounds), closed-form offspring variances
@@ -23,7 +23,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import chi2_contingency
 
-from fastslam_edu import resampling as rs
+from fastslam_edu.core import resampling as rs
 
 SCHEMES = ["multinomial", "stratified", "systematic", "residual"]
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from fastslam_edu import se2
+from fastslam_edu.core import se2
 
 
 def matrix(p):
@@ -120,7 +120,7 @@ def test_every_result_heading_lies_in_the_half_open_interval():
 
 def test_wrap_angle_against_math_remainder():
     """wrap_angle equals math.remainder(a, 2π) (an independent wrap), also many turns away; ±π map to π."""
-    from fastslam_edu.angles import wrap_angle
+    from fastslam_edu.core.angles import wrap_angle
 
     a = np.random.default_rng(4).uniform(-100.0, 100.0, 500)
     ref = np.array([math.remainder(v, 2 * math.pi) for v in a])

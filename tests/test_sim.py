@@ -1,8 +1,8 @@
-"""Tests of fastslam_edu.sim against its own stated truth.
+"""Tests of fastslam_edu.datasets.sim against its own stated truth.
 
 References: the groundtruth (interpolated at measurement times) for the
 measurement model, a dead-reckoning integration written here (Euler,
-fastslam_edu.motion.propagate, a different integrator from the simulator's
+fastslam_edu.core.motion.propagate, a different integrator from the simulator's
 exact arcs) for the odometry, and binomial / normal sampling bounds.
 """
 
@@ -14,10 +14,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.log import Dataset, RobotLog
-from fastslam_edu.motion import MotionNoise, propagate
-from fastslam_edu.sim import ACCEL_MAX, ANGULAR_ACCEL_MAX, HEADING_GAIN, SimConfig, barcode_of, simulate_dataset
+from fastslam_edu.core.motion import MotionNoise, propagate
+from fastslam_edu.datasets.sim import ACCEL_MAX, ANGULAR_ACCEL_MAX, HEADING_GAIN, SimConfig, barcode_of, simulate_dataset
 
 NO_NOISE = MotionNoise()
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.experiment import score_estimate, summarize_smoother
-from fastslam_edu.fastslam import FastSLAMParams, run_fastslam
-from fastslam_edu.metrics import landmark_errors_aligned
-from fastslam_edu.motion import MotionNoise, move_segment
-from fastslam_edu.se2 import relative
-from fastslam_edu.smoother import (
+from fastslam_edu.app.experiment import score_estimate, summarize_smoother
+from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
+from fastslam_edu.evaluation.metrics import landmark_errors_aligned
+from fastslam_edu.core.motion import MotionNoise, move_segment
+from fastslam_edu.core.se2 import relative
+from fastslam_edu.landmark.smoother import (
     PRIOR_STD,
     block_tridiagonal_inverse_diagonal,
     dead_reckoning,
@@ -268,7 +268,7 @@ def test_block_tridiagonal_inverse_diagonal_matches_dense_inverse():
 
 def test_laplace_blocks_match_the_dense_inverse_of_the_normal_matrix(monkeypatch):
     """The poses' σ and the landmarks' covariances are the diagonal blocks of (JᵀJ)⁻¹ at the solution."""
-    import fastslam_edu.smoother as smoother
+    import fastslam_edu.landmark.smoother as smoother
 
     _, _, stream = simulate(16, duration=20.0)
     seen, laplace = {}, smoother._laplace

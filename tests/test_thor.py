@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fastslam_edu.thor import (
+from fastslam_edu.grid.thor import (
     BODY_HEIGHT,
     FLOOR_Z,
     LIDAR_HEIGHT,

@@ -1,6 +1,6 @@
 """``fastslam-edu gridslam --format thor``: a THOR LiDAR log projected to the plane, then grid SLAM.
 
-A short THOR sequence is simulated (:func:`fastslam_edu.thor_sim.simulate_thor`)
+A short THOR sequence is simulated (:func:`fastslam_edu.datasets.thor_sim.simulate_thor`)
 with a synthetic joint log: the neck sways ±0.4 rad, the head is level (3°)
 except for 4 s pitched 25° down, when the beams hit the floor 3 m ahead. The
 truth is the simulated body pose; the odometry drifts (5 % scale, 0.05 rad/m).
@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 import scipy.io
 
-from fastslam_edu.cli import main
+from fastslam_edu.app.cli import main
 from fastslam_edu.datasets.laser import ThorLidar, read_thor_joints, read_thor_lidar, thor_angles
-from fastslam_edu.gridslam import GridSLAMParams, run_grid_slam
-from fastslam_edu.thor import PLANAR_BEARING_STEP, lidar_points_world, planar_laser_log
-from fastslam_edu.thor_sim import FLOOR, ThorSimConfig, simulate_thor, write_sequence
+from fastslam_edu.grid.gridslam import GridSLAMParams, run_grid_slam
+from fastslam_edu.grid.thor import PLANAR_BEARING_STEP, lidar_points_world, planar_laser_log
+from fastslam_edu.datasets.thor_sim import FLOOR, ThorSimConfig, simulate_thor, write_sequence
 
 T0 = 1.6e9  # Unix time of the first joint sample [s]
 N_DOWN_END = 161  # scans up to the end of the pitched-down window (16 s at 10 Hz)

@@ -1,4 +1,4 @@
-"""Tests of fastslam_edu.weights.
+"""Tests of fastslam_edu.core.weights.
 
 Independent references: the definition (kept ratios, sum 1), scipy.special.logsumexp, exact ratios of weights
 given as logs (including values like 1e-400 that no float can hold), and the
@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.special import logsumexp
 
-from fastslam_edu.weights import (
+from fastslam_edu.core.weights import (
     effective_sample_size,
     effective_sample_size_from_log,
     is_degenerate,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .log import Dataset, EventStream, RobotLog
+from fastslam_edu.datasets.log import Dataset, EventStream, RobotLog
 
 ENV_VAR = "FASTSLAM_EDU_DATA"
 
@@ -34,11 +34,11 @@ def mrclam_path(n: int, *, download: bool = False) -> Path:
     """
     p = data_root() / "mrclam" / f"MRCLAM_Dataset{n}"
     if download and f"mrclam{n}" in _registry_names():
-        from .registry import dataset_path
+        from fastslam_edu.datasets.registry import dataset_path
 
         return dataset_path(f"mrclam{n}", download=True)
     if not p.is_dir() and download:
-        from .fetch import fetch_mrclam
+        from fastslam_edu.datasets.fetch import fetch_mrclam
 
         return fetch_mrclam(n, data_root() / "mrclam")
     if not p.is_dir():
@@ -53,7 +53,7 @@ def mrclam_path(n: int, *, download: bool = False) -> Path:
 
 def _registry_names() -> tuple[str, ...]:
     """Names of the registered datasets (``mrclam1``, ``intel``, ...)."""
-    from .registry import REGISTRY
+    from fastslam_edu.datasets.registry import REGISTRY
 
     return tuple(REGISTRY)
 
@@ -65,7 +65,7 @@ _FROM_REGISTRY = ("DataFetchError", "DataFile", "DatasetEntry", "MIRROR_ENV_VAR"
 def __getattr__(name: str):
     """The registry's names, imported on first use (so ``python -m fastslam_edu.datasets.registry`` runs cleanly)."""
     if name in _FROM_REGISTRY:
-        from . import registry
+        from fastslam_edu.datasets import registry
 
         return getattr(registry, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -22,9 +22,9 @@ from collections.abc import Iterable
 import numpy as np
 import pandas as pd
 
-from ..angles import wrap_angle
-from ..se2 import interpolate_poses
-from .log import EventStream, RobotLog
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.core.se2 import interpolate_poses
+from fastslam_edu.datasets.log import EventStream, RobotLog
 
 RATES = ("full", "1hz")
 

@@ -301,7 +301,7 @@ def downloaded_zip(url: str, folder: Path, *, sha256: str | None, timeout: float
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m fastslam_edu.datasets.fetch N [DEST]``."""
-    from . import data_root
+    from fastslam_edu.datasets import data_root
 
     parser = argparse.ArgumentParser(
         prog="python -m fastslam_edu.datasets.fetch",

@@ -9,7 +9,7 @@ frame (0 straight ahead, positive to the left), ranges [m].
   ``freiburg-079-corrected.log.gz``. In those the pose stored with each scan is
   GMapping's *corrected* pose; :func:`odometry_increments` recovers the *raw*
   odometry between scans from the ``ODOM`` lines, and
-  :func:`~fastslam_edu.se2.compose_increments` rebuilds the raw-odometry path.
+  :func:`~fastslam_edu.core.se2.compose_increments` rebuilds the raw-odometry path.
 * :func:`read_intel_json` — the two JSON versions of the 910 Intel scans
   (raw-odometry poses or corrected poses); :func:`read_relations` — the
   Kümmerle et al. (2009) relation files.
@@ -18,7 +18,7 @@ frame (0 straight ahead, positive to the left), ranges [m].
 
 "No return" readings (CARMEN writes 81.83 or 81.91 m, beyond the SICK's 80 m)
 become ``np.nan`` in :attr:`LaserLog.ranges`; :meth:`LaserLog.beams` gives a
-scan's valid beams, ready for :func:`fastslam_edu.grid.scan_endpoints`.
+scan's valid beams, ready for :func:`fastslam_edu.grid.occupancy.scan_endpoints`.
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ import numpy as np
 import pandas as pd
 import scipy.io
 
-from fastslam_edu.angles import wrap_angle
-from fastslam_edu.se2 import compose_increments, path_increments, relative
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.core.se2 import compose_increments, path_increments, relative
 
 __all__ = [
     "LaserLog",

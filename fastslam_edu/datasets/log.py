@@ -1,7 +1,7 @@
 """The structures every data source produces: a robot's log and the filter's event stream.
 
 Both the MR.CLAM reader (:mod:`fastslam_edu.datasets.mrclam`) and the simulator
-(:mod:`fastslam_edu.sim`) produce a :class:`Dataset` of :class:`RobotLog` objects;
+(:mod:`fastslam_edu.datasets.sim`) produce a :class:`Dataset` of :class:`RobotLog` objects;
 :func:`event_stream` turns one robot's log into the time-ordered
 :class:`EventStream` the filters consume.
 

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .log import Dataset, RobotLog
+from fastslam_edu.datasets.log import Dataset, RobotLog
 
 HEADER_LINES = 4
 """Number of ``#`` header lines at the top of every ``.dat`` file."""

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlparse
 
-from .fetch import failure_reason, pooch_download, sha256_of_file
+from fastslam_edu.datasets.fetch import failure_reason, pooch_download, sha256_of_file
 
 MIRROR_ENV_VAR = "FASTSLAM_EDU_MIRROR"
 """Environment variable: URL of a web folder laid out like the data folder, used instead of the pinned sources."""
@@ -209,7 +209,7 @@ def file_state(path: Path, entry: DataFile) -> str:
 def resolve_root(root: str | Path | None) -> Path:
     """``root`` as an absolute path; the data root (``$FASTSLAM_EDU_DATA`` or ``./data``) when None."""
     if root is None:
-        from . import data_root
+        from fastslam_edu.datasets import data_root
 
         return data_root()
     return Path(root).expanduser().resolve()
@@ -426,7 +426,7 @@ def dataset_path(name: str, *, download: bool = False, root: str | Path | None =
     absent = [f.path for f in entry.files
               if not (base / f.path).is_file() or (base / f.path).stat().st_size != f.size]
     if absent:
-        from . import ENV_VAR
+        from fastslam_edu.datasets import ENV_VAR
 
         raise FileNotFoundError(
             f"dataset {name!r} is not complete in {base / entry.folder} ({len(absent)} of {len(entry.files)} files "

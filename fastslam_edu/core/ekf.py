@@ -4,7 +4,7 @@ In FastSLAM 1.0 each particle carries its own pose ``x`` and, for every landmark
 ``j`` it has seen, a Gaussian ``N(μ_j, Σ_j)`` over the landmark position. Given
 the particle's pose, the landmark is the only unknown, so each landmark has a
 tiny EKF with a 2-D state ``μ`` [m] and the range–bearing measurement
-``z = (r, φ) = h(x, μ)`` of :mod:`fastslam_edu.measurement`.
+``z = (r, φ) = h(x, μ)`` of :mod:`fastslam_edu.core.measurement`.
 
 Symbols (shapes without the batch dimensions)
 
@@ -42,9 +42,9 @@ import math
 import numpy as np
 from numba import njit
 
-from fastslam_edu.angles import wrap_one
+from fastslam_edu.core.angles import wrap_one
 
-from fastslam_edu.measurement import (
+from fastslam_edu.core.measurement import (
     _as_finite,
     _at,
     innovation,
@@ -183,7 +183,7 @@ def innovation_statistics(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray]:
     With ``Q = H Σ Hᵀ + R`` as in :func:`update_landmark`. If the models are right,
     ``d²`` follows a χ² distribution with 2 degrees of freedom, so
     ``d² > 13.8`` happens for 0.1 % of good measurements: the outlier gate of
-    :mod:`fastslam_edu.fastslam` rejects measurements beyond such a threshold.
+    :mod:`fastslam_edu.landmark.fastslam` rejects measurements beyond such a threshold.
 
     Shapes as in :func:`update_landmark`; returns ``nu (..., 2)`` and ``d2 (...)``.
     """

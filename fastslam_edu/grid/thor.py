@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .datasets.laser import LaserLog, ThorLidar
+from fastslam_edu.datasets.laser import LaserLog, ThorLidar
 
 __all__ = [
     "BODY_HEIGHT",

@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fastslam_edu.angles import wrap_angle
-from fastslam_edu.params import Params
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.core.params import Params
 
 _MODES = ("control", "state")
 
@@ -115,7 +115,7 @@ class MotionNoise(Params):
 
     @property
     def densities(self) -> np.ndarray:
-        """``(σ_v, σ_ω, σ_xy, σ_θ)`` as an array (what :func:`fastslam_edu.fastslam_step.sample_pose` takes)."""
+        """``(σ_v, σ_ω, σ_xy, σ_θ)`` as an array (what :func:`fastslam_edu.landmark.fastslam_step.sample_pose` takes)."""
         return np.array([self.sigma_v, self.sigma_omega, self.sigma_xy, self.sigma_theta])
 
     @property
@@ -387,7 +387,7 @@ def segment_increments(x, u, dt, noise: MotionNoise, eps):
     and the step moves the robot by ``Δs_j (cos θ_j, sin θ_j)`` (plus, for noise
     on the state, ``σ_xy √Δt (ε₁, ε₂)``). The poses are running sums of these
     displacements: :func:`move_segment` takes them; the filter, which needs only
-    weighted means, runs the same steps one particle at a time (:func:`fastslam_edu.fastslam_step.sample_segment`).
+    weighted means, runs the same steps one particle at a time (:func:`fastslam_edu.landmark.fastslam_step.sample_segment`).
 
     Parameters are those of :func:`move_segment` (unchecked: ``x`` (M, 3),
     ``u`` (L, 2), ``dt`` (L,), ``eps`` (M, L, noise.n_draws)).

@@ -17,10 +17,10 @@ Dellaert & Kaess's square-root SAM). With keyframe poses
 * the **prior** :math:`\\bar x_0`: the stream's initial pose, where every particle starts;
 * the **odometry factors**: :math:`\\Delta_k` is the dead-reckoned motion between
   keyframes :math:`k-1` and :math:`k` in the frame of :math:`x_{k-1}`, and :math:`C_k` its
-  covariance under the filter's motion noise (:class:`~fastslam_edu.motion.MotionNoise`),
+  covariance under the filter's motion noise (:class:`~fastslam_edu.core.motion.MotionNoise`),
   propagated through every odometry step in between (:func:`odometry_factors`);
 * the **sightings**: range–bearing residuals with the filter's :math:`R_i` (range-dependent)
-  and its tempering :math:`\\beta_i` (:func:`fastslam_edu.fastslam.evidence_fractions`).
+  and its tempering :math:`\\beta_i` (:func:`fastslam_edu.landmark.fastslam.evidence_fractions`).
 
 It is solved by Levenberg–Marquardt on the sparse normal equations
 :math:`(J^\\top J + \\lambda\\,\\mathrm{diag}\\,J^\\top J)\\,\\delta = -J^\\top r`, first with a Huber
@@ -47,12 +47,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from .angles import wrap_angle
-from .datasets.log import EventStream
-from .fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions, stream_commands
-from .measurement import innovation, jacobian_landmark, jacobian_pose, landmark_from_measurement, range_bearing
-from .motion import MotionNoise, path_from_increments, segment_increments
-from .se2 import relative
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions, stream_commands
+from fastslam_edu.core.measurement import innovation, jacobian_landmark, jacobian_pose, landmark_from_measurement, range_bearing
+from fastslam_edu.core.motion import MotionNoise, path_from_increments, segment_increments
+from fastslam_edu.core.se2 import relative
 
 #: Standard deviation of the prior on the first keyframe (the filter starts every particle there exactly).
 PRIOR_STD = (1e-3, 1e-3, 1e-4)  # m, m, rad
@@ -130,8 +130,8 @@ def keyframe_steps(stream: EventStream, max_gap_s: float = 1.0) -> np.ndarray:
 def dead_reckoning(stream: EventStream, x0, odometry_scale=(1.0, 1.0)) -> np.ndarray:
     """The pose after every step from the commands alone: shape (len(stream), 3), θ continuous.
 
-    The filter's motion model (:func:`fastslam_edu.motion.segment_increments`) without noise,
-    with the commands times ``odometry_scale`` (:func:`fastslam_edu.fastslam.stream_commands`).
+    The filter's motion model (:func:`fastslam_edu.core.motion.segment_increments`) without noise,
+    with the commands times ``odometry_scale`` (:func:`fastslam_edu.landmark.fastslam.stream_commands`).
     """
     x0 = np.asarray(x0, dtype=float).reshape(1, 3)
     u, _ = stream_commands(stream, FastSLAMParams(odometry_scale=tuple(odometry_scale)))
@@ -461,7 +461,7 @@ def smooth(
     x0 : (3,) initial pose; default ``stream.x0``.
     x0_std : (3,) standard deviations of the prior on the first pose [m, m, rad]. The default pins it
         (``PRIOR_STD``: a start from groundtruth, where every particle starts); give the start's real
-        uncertainty when it is an estimate (:mod:`fastslam_edu.initial_pose`), or the first sightings
+        uncertainty when it is an estimate (:mod:`fastslam_edu.landmark.initial_pose`), or the first sightings
         will disagree with it and be gated out.
     max_gap_s : float
         Keyframe spacing where there are no sightings (:func:`keyframe_steps`).

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 
 
 def _as_finite(name: str, a, trailing: tuple[int, ...], caller: str) -> np.ndarray:

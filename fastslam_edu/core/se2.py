@@ -15,7 +15,7 @@ operations of this module are matrix algebra written out:
   ``x_k = x_{k−1} ⊕ u_k`` rebuilds the path (:func:`compose_increments`).
 
 Angles of results are wrapped to (−π, π] with
-:func:`fastslam_edu.angles.wrap_angle`. Every function is vectorised: poses are
+:func:`fastslam_edu.core.angles.wrap_angle`. Every function is vectorised: poses are
 ``(..., 3)``, points ``(..., 2)``, and leading dimensions broadcast (e.g. ``M``
 particles ``(M, 3)`` composed with one increment ``(3,)``).
 """
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 
 __all__ = [
     "interpolate_poses",

@@ -14,10 +14,10 @@ What is simulated
   proportional heading controller (``|v| ≤ v_max``, ``|ω| ≤ omega_max``,
   acceleration-limited). The command ``u_i = (v_i, ω_i)`` issued at odometry
   time ``t_i`` is held until ``t_{i+1}`` (zero-order hold), and the pose
-  follows the exact circular arc (:func:`fastslam_edu.motion.propagate_arc`).
+  follows the exact circular arc (:func:`fastslam_edu.core.motion.propagate_arc`).
   Odometry times are irregular: intervals ``U(0.5, 1.5) / odometry_rate``.
 * **Odometry** reports the true command plus white noise of the given
-  *densities* (:class:`~fastslam_edu.motion.MotionNoise`, control mode)::
+  *densities* (:class:`~fastslam_edu.core.motion.MotionNoise`, control mode)::
 
       v̂_i = v_i + σ_v / √Δt_i · ε₁,     ω̂_i = ω_i + σ_ω / √Δt_i · ε₂,
 
@@ -48,9 +48,9 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 import pandas as pd
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.log import Dataset, RobotLog
-from fastslam_edu.motion import MotionNoise, propagate_arc
+from fastslam_edu.core.motion import MotionNoise, propagate_arc
 
 #: Controller constants: heading gain [1/s], acceleration limits, waypoint radius [m].
 HEADING_GAIN = 1.5
@@ -426,7 +426,7 @@ __all__ = ["SimConfig", "simulate_dataset", "barcode_of", "place_landmarks", "ra
 
 # =========================================================================== a laser world
 # A 2D floor plan seen by a planar laser scanner, for testing grid SLAM
-# (fastslam_edu.gridslam) against a known truth without real data.
+# (fastslam_edu.grid.gridslam) against a known truth without real data.
 
 
 @dataclass(frozen=True)
@@ -604,7 +604,7 @@ def simulate_laser_world(
         apart), ``truth`` (N, 3), ``walls`` (S, 2, 2).
     """
     from fastslam_edu.datasets.laser import LaserLog
-    from fastslam_edu.se2 import compose_increments, path_increments
+    from fastslam_edu.core.se2 import compose_increments, path_increments
 
     rng = _generator(seed_or_rng)
     for name, v in (("step", step), ("turn_step", turn_step), ("max_range", max_range)):

@@ -21,20 +21,20 @@ from pathlib import Path
 
 import numpy as np
 
-from . import metrics
-from .datasets.audit import apply_landmark_audit
-from .datasets.events import event_stream, groundtruth_at
-from .datasets.log import Dataset, RobotLog
-from .datasets.mrclam import groundtruth_files, read_dataset, read_groundtruth_csv, read_groundtruth_dat, robots_in
-from .fastslam import FastSLAMParams, FastSLAMResult, Kidnap, ProgressBar, run_fastslam
-from .initial_pose import initial_pose_from_landmarks
-from .smoother import SmootherResult
+from fastslam_edu.evaluation import metrics
+from fastslam_edu.evaluation.audit import apply_landmark_audit
+from fastslam_edu.datasets.events import event_stream, groundtruth_at
+from fastslam_edu.datasets.log import Dataset, RobotLog
+from fastslam_edu.datasets.mrclam import groundtruth_files, read_dataset, read_groundtruth_csv, read_groundtruth_dat, robots_in
+from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, Kidnap, ProgressBar, run_fastslam
+from fastslam_edu.landmark.initial_pose import initial_pose_from_landmarks
+from fastslam_edu.landmark.smoother import SmootherResult
 
 
 def load_mrclam(path, robot: int, *, groundtruth_file=None, audit: bool = True):
     """Read one robot of a MR.CLAM dataset, with the landmark table audited.
 
-    The audit (:mod:`fastslam_edu.datasets.audit`) needs groundtruth poses: it
+    The audit (:mod:`fastslam_edu.evaluation.audit`) needs groundtruth poses: it
     uses the robot's own, or, for a robot without groundtruth (Dataset 1,
     robots 3–5), those of the dataset's other robots — the table is the
     dataset's, not the robot's, and a robot without groundtruth must not get
@@ -105,7 +105,7 @@ def summarize(result: FastSLAMResult, dataset: Dataset, log: RobotLog) -> dict:
 
 
 def summarize_smoother(result: SmootherResult, dataset: Dataset, log: RobotLog) -> dict:
-    """The figures of a :func:`fastslam_edu.smoother.smooth` solution, scored as a filter run is."""
+    """The figures of a :func:`fastslam_edu.landmark.smoother.smooth` solution, scored as a filter run is."""
     out: dict = {
         "keyframes": int(len(result.t)),
         "measurements_used": result.measurements_used,
@@ -202,7 +202,7 @@ def run_mrclam(
     """Load, run and score FastSLAM on one robot of a MR.CLAM dataset.
 
     ``x0``: the initial pose ``(x, y, θ)``; ``"landmarks"`` to find it from the
-    first sightings of the surveyed landmarks (:mod:`fastslam_edu.initial_pose`,
+    first sightings of the surveyed landmarks (:mod:`fastslam_edu.landmark.initial_pose`,
     for robots without groundtruth; the summary's notes say where it came from);
     default the groundtruth at the first step.
 

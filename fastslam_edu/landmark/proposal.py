@@ -16,7 +16,7 @@ model *conditioned on the sighting*, linearised around the motion prediction
     S = G P G^\\top + Q, \\qquad K_x = P G^\\top S^{-1}, \\qquad
     \\mu_x = \\bar x + K_x\\,(z - \\hat z(\\bar x)), \\qquad \\Sigma_x = (I - K_x G)\\,P
 
-with :math:`G = \\partial h/\\partial x` (2×3, :func:`fastslam_edu.measurement.jacobian_pose`)
+with :math:`G = \\partial h/\\partial x` (2×3, :func:`fastslam_edu.core.measurement.jacobian_pose`)
 and :math:`Q = H \\Sigma H^\\top + R` the landmark's innovation covariance of FastSLAM 1.0.
 (The information form of the same Gaussian, :math:`\\Sigma_x = (G^\\top Q^{-1} G + P^{-1})^{-1}`,
 is the paper's; :func:`improved_pose_one` computes it that way.) The importance
@@ -31,7 +31,7 @@ sampled pose. The landmark's EKF is then updated from the new pose, exactly as
 in FastSLAM 1.0.
 
 **How the engine samples it.** The engine has already drawn the motion sample
-:math:`\\hat x \\sim \\mathcal N(\\bar x, P)` (step 1, :mod:`fastslam_edu.motion`). It moves that
+:math:`\\hat x \\sim \\mathcal N(\\bar x, P)` (step 1, :mod:`fastslam_edu.core.motion`). It moves that
 sample by a *perturbed observation*,
 :math:`x = \\hat x + K_x\\,(z + \\varepsilon - \\hat z(\\hat x))`, :math:`\\varepsilon \\sim \\mathcal N(0, Q)`.
 For a linear :math:`h` this is a draw from :math:`\\mathcal N(\\mu_x, \\Sigma_x)` exactly: with
@@ -53,10 +53,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .angles import wrap_angle
-from .ekf import _det2, _inv2, _symmetrise, _transpose
-from .measurement import innovation, jacobian_landmark, jacobian_pose, range_bearing
-from .motion import MotionNoise, path_from_increments, segment_increments
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.core.ekf import _det2, _inv2, _symmetrise, _transpose
+from fastslam_edu.core.measurement import innovation, jacobian_landmark, jacobian_pose, range_bearing
+from fastslam_edu.core.motion import MotionNoise, path_from_increments, segment_increments
 
 
 def segment_motion(u, dt, noise: MotionNoise) -> tuple[np.ndarray, np.ndarray]:
@@ -237,7 +237,7 @@ def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, rn
     for each particle moved by sighting ``j``, NaN where the proposal was not used
     (FastSLAM 1.0's weight applies there). FastSLAM 1.0's update of the same
     sightings then takes them (``proposal_loglik`` of
-    :func:`fastslam_edu.fastslam.update_with_measurements`), with the gate and the
+    :func:`fastslam_edu.landmark.fastslam.update_with_measurements`), with the gate and the
     exponents :math:`\\beta` as for its own.
     """
     loglik = np.full((len(particles), len(z)), np.nan)

@@ -19,7 +19,7 @@ For FastSLAM the pose estimate and its covariance are those of the particle
 cloud (:func:`pose_covariance`: the weighted mean and covariance of the
 particles' poses, headings averaged on the circle); the map's are those of the
 mixture of the particles' landmark EKFs
-(:func:`fastslam_edu.fastslam.combined_map`). :class:`SpreadRecorder` collects
+(:func:`fastslam_edu.landmark.fastslam.combined_map`). :class:`SpreadRecorder` collects
 the cloud during a run through ``run_fastslam(..., hooks=[Monitor(callback)])`` without
 changing it. :func:`align_pose` moves a pose and its covariance by the rigid
 motion that fits the estimated map to the true one: the NEES of the aligned
@@ -32,9 +32,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from fastslam_edu.angles import wrap_angle
-from fastslam_edu.fastslam import FastSLAMParams, combined_map, combined_pose
-from fastslam_edu.sim import SimConfig
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.landmark.fastslam import FastSLAMParams, combined_map, combined_pose
+from fastslam_edu.datasets.sim import SimConfig
 
 __all__ = [
     "nees",
@@ -119,7 +119,7 @@ def pose_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean and covariance of a particle cloud of poses.
 
     :math:`\\bar x = \\sum_m w^{[m]} x^{[m]}` with the circular mean for the heading
-    (:func:`fastslam_edu.fastslam.combined_pose`), and
+    (:func:`fastslam_edu.landmark.fastslam.combined_pose`), and
     :math:`P = \\sum_m w^{[m]} \\delta^{[m]} \\delta^{[m]\\top}` with
     :math:`\\delta^{[m]} = x^{[m]} - \\bar x`, its heading wrapped: a cloud that
     straddles θ = ±π has a small variance, not one of π².
@@ -148,7 +148,7 @@ def pose_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
 def align_pose(pose, cov, R, t, angle) -> tuple[np.ndarray, np.ndarray]:
     """A pose and its covariance moved by the rigid motion ``p ↦ R p + t`` (rotation ``angle``).
 
-    ``(R, t, angle)`` as returned by :func:`fastslam_edu.metrics.align_se2`:
+    ``(R, t, angle)`` as returned by :func:`fastslam_edu.evaluation.metrics.align_se2`:
     position :math:`R p + t`, heading :math:`\\theta + \\alpha`; the covariance becomes
     :math:`J P J^\\top` with :math:`J = \\mathrm{diag}(R, 1)`.
     """
@@ -164,7 +164,7 @@ def align_pose(pose, cov, R, t, angle) -> tuple[np.ndarray, np.ndarray]:
 
 
 class SpreadRecorder:
-    """A ``monitor`` for :func:`fastslam_edu.fastslam.run_fastslam` that keeps the particle cloud's spread.
+    """A ``monitor`` for :func:`fastslam_edu.landmark.fastslam.run_fastslam` that keeps the particle cloud's spread.
 
     With ``times=None`` it records every measurement step. With ``times`` it
     records, for each of them, the first measurement step at or after it: one
@@ -172,7 +172,7 @@ class SpreadRecorder:
     sighting between them get the same step; times after the last measurement
     step get none). A record is the step's time, the cloud's mean pose and
     covariance (:func:`pose_covariance`) and, with ``maps=True``, the combined
-    map (:func:`fastslam_edu.fastslam.combined_map`: means (K, 2), covariances
+    map (:func:`fastslam_edu.landmark.fastslam.combined_map`: means (K, 2), covariances
     (K, 2, 2), observed (K,)). It reads the particles and never writes them.
 
     Attributes (lists, one entry per record): ``t``, ``mean``, ``cov``, ``maps``.

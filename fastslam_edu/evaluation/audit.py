@@ -3,7 +3,7 @@
 Every measurement ``z = (r, φ)`` taken from the groundtruth pose ``x`` puts its
 landmark at ``h⁻¹(x, z)``; the median of these implied positions over all of a
 landmark's sightings is precise to centimetres
-(:func:`fastslam_edu.noise_estimation.landmark_check`). If the sightings
+(:func:`fastslam_edu.evaluation.noise_estimation.landmark_check`). If the sightings
 labelled ``a`` sit metres from ``a``'s table position but on ``b``'s, and those
 labelled ``b`` sit on ``a``'s, the table (or the barcode list) has ``a`` and
 ``b`` exchanged.
@@ -24,8 +24,8 @@ import dataclasses
 
 import pandas as pd
 
-from ..noise_estimation import OUTLIER_THRESHOLD, landmark_check, measurement_residuals
-from .log import Dataset
+from fastslam_edu.evaluation.noise_estimation import OUTLIER_THRESHOLD, landmark_check, measurement_residuals
+from fastslam_edu.datasets.log import Dataset
 
 #: Fewest sightings of each landmark of a pair before an exchange is trusted.
 MIN_SIGHTINGS = 20
@@ -38,7 +38,7 @@ def audit_landmarks(dataset: Dataset, robots=None) -> pd.DataFrame:
     """Where each landmark's sightings put it, against the table (one row per measured subject).
 
     Uses every robot (or those in ``robots``) that has groundtruth. Columns as
-    :func:`fastslam_edu.noise_estimation.landmark_check`: ``n``, the table ``x, y``,
+    :func:`fastslam_edu.evaluation.noise_estimation.landmark_check`: ``n``, the table ``x, y``,
     the median implied position ``x_seen, y_seen``, their distance ``offset`` [m],
     the table entry ``nearest`` to the implied position, and ``suspect``
     (offset above 0.5 m). Empty when no robot has groundtruth.

@@ -12,9 +12,9 @@ The write-up (a course project on THOR humanoid LiDAR) runs, for every scan
    (:func:`correlation`). The write-up's rule is ``T = 1``; a *temperature*
    ``T > 1`` tempers it (see below).
 3. **Normalise** the weights, in log space
-   (:func:`fastslam_edu.weights.normalise_log_weights`).
+   (:func:`fastslam_edu.core.weights.normalise_log_weights`).
 4. **Map**: add the scan, seen from the **best** particle (largest weight),
-   to one shared log-odds grid (:class:`fastslam_edu.grid.OccupancyGrid`).
+   to one shared log-odds grid (:class:`fastslam_edu.grid.occupancy.OccupancyGrid`).
 5. **Resample** (systematic) — the write-up does it every step; here only when
    ``N_eff = 1 / Σ w² < resample_threshold · M`` (Doucet's rule), and the
    weights are reset to ``1/M`` afterwards.
@@ -51,7 +51,7 @@ particles whose scores differ by 10 endpoints get a weight ratio ``e^{10} ≈ 2�
 and the filter keeps essentially only the best particle at every step. The
 temperature ``T`` divides the score, ``log w += c / T``: ``T = 1`` is the
 write-up's rule, larger ``T`` keeps more hypotheses alive. Everything is done
-in log space (:func:`fastslam_edu.weights.weights_from_log`), so ``exp(180)``
+in log space (:func:`fastslam_edu.core.weights.weights_from_log`), so ``exp(180)``
 never overflows.
 
 Optional scan matching
@@ -82,13 +82,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import logit
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.laser import LaserLog, odometry_increments
-from fastslam_edu.grid import OccupancyGrid, bresenham, scan_endpoints
-from fastslam_edu.params import Params
-from fastslam_edu.resampling import get_resampler
-from fastslam_edu.se2 import compose, compose_increments, transform_points
-from fastslam_edu.weights import effective_sample_size, normalise_log_weights
+from fastslam_edu.grid.occupancy import OccupancyGrid, bresenham, scan_endpoints
+from fastslam_edu.core.params import Params
+from fastslam_edu.core.resampling import get_resampler
+from fastslam_edu.core.se2 import compose, compose_increments, transform_points
+from fastslam_edu.core.weights import effective_sample_size, normalise_log_weights
 
 __all__ = [
     "GridSLAMParams",
@@ -139,7 +139,7 @@ class GridSLAMParams(Params):
         Resample when ``N_eff < resample_threshold · M`` (1.0 ≈ every step, as
         the write-up; 0 never).
     resampler : str
-        A name of :data:`fastslam_edu.resampling.RESAMPLERS` (default systematic).
+        A name of :data:`fastslam_edu.core.resampling.RESAMPLERS` (default systematic).
     resolution : float
         Cell side [m].
     margin : float
@@ -149,7 +149,7 @@ class GridSLAMParams(Params):
         Explicit grid bounds [m].
     p_hit, p_miss, l_max : float
         Inverse sensor model (``l_occ = logit(p_hit)``, ``l_free = logit(p_miss)``)
-        and log-odds clipping, as in :class:`~fastslam_edu.grid.OccupancyGrid`.
+        and log-odds clipping, as in :class:`~fastslam_edu.grid.occupancy.OccupancyGrid`.
     occupied_logodds : float
         A cell counts as occupied in the correlation when ``l > occupied_logodds``
         (0: ``p > 0.5``).
@@ -493,7 +493,7 @@ def correlation(log_odds, rows, cols, threshold: float = 0.0, kernel=None) -> np
 def ray_cells_batch(starts, ends) -> tuple[np.ndarray, np.ndarray]:
     """Cells crossed by beams from several start cells at once (one start per particle).
 
-    The closed form of :func:`fastslam_edu.grid.ray_cells` (Bresenham's digital
+    The closed form of :func:`fastslam_edu.grid.occupancy.ray_cells` (Bresenham's digital
     line, ``start + sign(Δ)·⌊(2 i |Δ| + n − 1) / (2 n)⌋`` per axis for
     ``i = 0 … n − 1``, ``n = max |Δ|``) with a start per particle.
 

@@ -17,7 +17,7 @@ where each line is computed::
     line 17     w *= |2 pi Q|^(-1/2) exp(-nu^T Q^-1 nu / 2)        (a log weight)
     lines 5-17  for one particle and one sighting                  update_particle
 
-What real data adds to the table (see :mod:`fastslam_edu.fastslam`): the outlier
+What real data adds to the table (see :mod:`fastslam_edu.landmark.fastslam`): the outlier
 gate (a sighting that *no* particle explains, :func:`explains`, is set aside), its
 escape, and tempered likelihoods (the log weight grows by :math:`\\beta \\log \\mathcal N`).
 
@@ -33,7 +33,7 @@ count      (M, K) int      sightings of :math:`j` used by particle :math:`m`
 logw       (M,)            :math:`\\log w^{[m]}` (unnormalised)
 =========  ==============  ==========================================
 
-The 2×2 algebra (in :mod:`fastslam_edu.ekf`) is written entry by entry (``h00`` is
+The 2×2 algebra (in :mod:`fastslam_edu.core.ekf`) is written entry by entry (``h00`` is
 :math:`H_{00}`): a small array per operation would cost more than the arithmetic.
 """
 
@@ -45,8 +45,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .angles import wrap_one
-from .ekf import ekf_initialise, ekf_innovation, ekf_update
+from fastslam_edu.core.angles import wrap_one
+from fastslam_edu.core.ekf import ekf_initialise, ekf_innovation, ekf_update
 
 
 class Particles(NamedTuple):
@@ -85,14 +85,14 @@ def sample_pose(x, y, theta, u, dt, noise, eps):
     """Line 4 for one odometry step: the pose ``(x, y, θ)`` moved by the noisy command.
 
     ``u = (v, ω)`` [m/s, rad/s], ``dt`` [s], ``noise`` = (σ_v, σ_ω, σ_xy, σ_θ)
-    (:class:`fastslam_edu.motion.MotionNoise`: densities per √s), ``eps`` the
+    (:class:`fastslam_edu.core.motion.MotionNoise`: densities per √s), ``eps`` the
     step's standard normals. Noise on the command (two normals):
     :math:`\\Delta s = v\\Delta t + \\sigma_v\\sqrt{\\Delta t}\\,\\varepsilon_1`,
     :math:`\\Delta\\theta = \\omega\\Delta t + \\sigma_\\omega\\sqrt{\\Delta t}\\,\\varepsilon_2`. Noise on the state (three):
     :math:`\\sigma_{xy}\\sqrt{\\Delta t}\\,(\\varepsilon_1, \\varepsilon_2)` added to the position,
     :math:`\\sigma_\\theta\\sqrt{\\Delta t}\\,\\varepsilon_3` to the turn. The Euler step moves by :math:`\\Delta s`
     along the heading at the start of the step; θ is left unwrapped.
-    (:func:`fastslam_edu.motion.move` is the same step for arrays of poses.)
+    (:func:`fastslam_edu.core.motion.move` is the same step for arrays of poses.)
 
     Returns the new ``x, y, θ`` and the cosine and sine of the heading the step
     started from (the caller's weighted mean of the previous step reuses them).

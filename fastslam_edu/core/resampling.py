@@ -124,7 +124,7 @@ def validate_weights(w) -> np.ndarray:
     if abs(total - 1.0) > WEIGHT_SUM_TOLERANCE:
         raise ValueError(
             f"weights must be normalised (sum to 1 within {WEIGHT_SUM_TOLERANCE:g}), but they sum "
-            f"to {total:.15g} (off by {total - 1.0:+.3g}); normalise them first (fastslam_edu.weights.weights_from_log)"
+            f"to {total:.15g} (off by {total - 1.0:+.3g}); normalise them first (fastslam_edu.core.weights.weights_from_log)"
         )
     return w / total
 

@@ -1,8 +1,8 @@
 """Parameter sets: immutable, comparable, hashable, copied and serialised one way.
 
 :class:`Params` is the base of the package's frozen dataclasses of settings
-(:class:`fastslam_edu.fastslam.FastSLAMParams`, :class:`fastslam_edu.gridslam.GridSLAMParams`,
-:class:`fastslam_edu.motion.MotionNoise`):
+(:class:`fastslam_edu.landmark.fastslam.FastSLAMParams`, :class:`fastslam_edu.grid.gridslam.GridSLAMParams`,
+:class:`fastslam_edu.core.motion.MotionNoise`):
 
 * ``a == b`` compares every field by value (arrays element by element), and
   ``hash(a)`` agrees with it, so a parameter set can key a dict of results;

@@ -1,6 +1,6 @@
-"""FastSLAM 1.0 with each particle's landmarks in a :class:`~fastslam_edu.landmark_tree.LandmarkTree`.
+"""FastSLAM 1.0 with each particle's landmarks in a :class:`~fastslam_edu.landmark.tree.LandmarkTree`.
 
-The array engine (:mod:`fastslam_edu.fastslam`) keeps the map of all particles
+The array engine (:mod:`fastslam_edu.landmark.fastslam`) keeps the map of all particles
 in dense arrays ``mu (M, K, 2)``, ``sigma (M, K, 2, 2)``; resampling copies
 them with fancy indexing — :math:`O(MK)` per resampling step, whatever the
 number of landmarks seen. Here (Montemerlo et al. 2002, section 4):
@@ -15,13 +15,13 @@ logw       (M,) array              :math:`\\log w^{[m]}`
 * **updating** landmark :math:`k` in particle :math:`m` path-copies
   :math:`\\lceil \\log_2 K \\rceil + 1` nodes: :math:`O(M \\log K)` per measurement;
 * the EKF arithmetic itself is the array engine's: the few landmarks measured
-  at an instant are read out of the trees (:func:`~fastslam_edu.landmark_tree.gather`),
-  updated by :func:`fastslam_edu.fastslam.update_with_measurements`, vectorised
+  at an instant are read out of the trees (:func:`~fastslam_edu.landmark.tree.gather`),
+  updated by :func:`fastslam_edu.landmark.fastslam.update_with_measurements`, vectorised
   over the M particles, and written back into new trees
-  (:func:`~fastslam_edu.landmark_tree.set_each`).
+  (:func:`~fastslam_edu.landmark.tree.set_each`).
 
 The filter consumes the random numbers in the same order as
-:func:`fastslam_edu.fastslam.run_fastslam` (it calls the same ``propagate`` and
+:func:`fastslam_edu.landmark.fastslam.run_fastslam` (it calls the same ``propagate`` and
 ``resample_if_needed``) and applies the measurements of one instant with the
 same function (batched distinct landmarks, a landmark seen twice in a second
 round, range-dependent :math:`R`, the robust gate), so for the same seed it
@@ -41,16 +41,16 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from .datasets.log import EventStream
-from .fastslam import (
+from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.landmark.fastslam import (
     FastSLAMParams,
     FastSLAMResult,
     ParticleSet,
     run_fastslam,
     update_with_measurements,
 )
-from .landmark_tree import LandmarkTree, gather, set_each, trees_to_arrays
-from .weights import weights_from_log
+from fastslam_edu.landmark.tree import LandmarkTree, gather, set_each, trees_to_arrays
+from fastslam_edu.core.weights import weights_from_log
 
 __all__ = [
     "TreeParticleSet",
@@ -118,7 +118,7 @@ class TreeParticleSet:
                                               escape=escape, power=power, proposal_loglik=proposal_loglik)
 
     def to_particle_set(self) -> ParticleSet:
-        """The same particles as a dense :class:`~fastslam_edu.fastslam.ParticleSet` (:math:`O(MK)`)."""
+        """The same particles as a dense :class:`~fastslam_edu.landmark.fastslam.ParticleSet` (:math:`O(MK)`)."""
         mu, sigma, seen, count = trees_to_arrays(self.trees)
         return ParticleSet(poses=self.poses.copy(), mu=mu, sigma=sigma, seen=seen, logw=self.logw.copy(),
                            count=count)
@@ -134,14 +134,14 @@ def update_trees_with_measurements(
     """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,).
 
     1. **Read** the :math:`n' \\le n` distinct landmarks measured out of every
-       particle's tree (:func:`~fastslam_edu.landmark_tree.gather`,
-       :math:`O(M n' \\log K)`) into a small :class:`~fastslam_edu.fastslam.ParticleSet`
+       particle's tree (:func:`~fastslam_edu.landmark.tree.gather`,
+       :math:`O(M n' \\log K)`) into a small :class:`~fastslam_edu.landmark.fastslam.ParticleSet`
        of :math:`n'` landmarks, which shares ``poses`` and ``logw`` with ``particles``.
     2. **Update** it with the array engine's own
-       :func:`~fastslam_edu.fastslam.update_with_measurements` — initialisation,
+       :func:`~fastslam_edu.landmark.fastslam.update_with_measurements` — initialisation,
        EKF update, weights, robust gate: the same numbers, by construction.
     3. **Write back** each landmark that changed in a particle (mean, covariance,
-       seen or count) by path copying (:func:`~fastslam_edu.landmark_tree.set_each`,
+       seen or count) by path copying (:func:`~fastslam_edu.landmark.tree.set_each`,
        :math:`O(\\log K)` each); a particle whose landmark did not change (an
        outlier for it, or a known map) keeps its tree.
 
@@ -170,7 +170,7 @@ def update_trees_with_measurements(
 
 @dataclass
 class FastSLAMTreeResult(FastSLAMResult):
-    """:class:`~fastslam_edu.fastslam.FastSLAMResult` of the tree filter.
+    """:class:`~fastslam_edu.landmark.fastslam.FastSLAMResult` of the tree filter.
 
     ``particles`` is the final set converted to dense arrays (so every tool
     made for the array engine applies); ``trees`` is the final set itself.
@@ -187,7 +187,7 @@ def run_fastslam_tree(
 ) -> FastSLAMTreeResult:
     """Run FastSLAM 1.0 with tree maps over an event stream.
 
-    The array engine's run loop (:func:`fastslam_edu.fastslam.run_fastslam`, whose
+    The array engine's run loop (:func:`fastslam_edu.landmark.fastslam.run_fastslam`, whose
     keyword options it takes) with particles that store their maps in trees
     (:class:`TreeParticleSet`): the same random numbers, the same result to
     rounding; ``filter_seconds`` is this filter's time and ``trees`` the final

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import expit, logit
 
-from fastslam_edu.se2 import transform_points
+from fastslam_edu.core.se2 import transform_points
 
 __all__ = [
     "OccupancyGrid",

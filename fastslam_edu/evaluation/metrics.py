@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from fastslam_edu.angles import wrap_angle
-from fastslam_edu.se2 import DEFAULT_TIME_TOLERANCE, interpolate_poses
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.core.se2 import DEFAULT_TIME_TOLERANCE, interpolate_poses
 
 __all__ = [
     "landmark_errors",

@@ -3,7 +3,7 @@
 FastSLAM needs two noise models: the measurement covariance
 ``R = diag(σ_r², σ_φ²)`` of the range–bearing sensor, and the motion noise
 densities ``σ_v`` [m/√s], ``σ_ω`` [rad/√s] of the odometry
-(:class:`~fastslam_edu.motion.MotionNoise`, control mode). With groundtruth
+(:class:`~fastslam_edu.core.motion.MotionNoise`, control mode). With groundtruth
 (Vicon poses and surveyed landmarks) both can be *measured* instead of guessed.
 This module writes down how the package's defaults are obtained.
 
@@ -11,9 +11,9 @@ Measurement noise (:func:`measurement_residuals`, :func:`measurement_noise`)
 --------------------------------------------------------------------------
 1. For every landmark measurement ``z_j = (r_j, φ_j)`` of subject ``s_j`` at
    time ``t_j``, take the groundtruth pose ``x(t_j)`` interpolated linearly
-   (heading unwrapped first, :func:`fastslam_edu.se2.interpolate_poses`)
+   (heading unwrapped first, :func:`fastslam_edu.core.se2.interpolate_poses`)
    and the surveyed landmark ``m_{s_j}``; predict ``ẑ_j = h(x(t_j), m_{s_j})``
-   (:func:`fastslam_edu.measurement.range_bearing`).
+   (:func:`fastslam_edu.core.measurement.range_bearing`).
 2. Residual ``e_j = (r_j − r̂_j, wrap(φ_j − φ̂_j))``.
 3. Robust spread: ``σ = 1.4826 · median_j |e_j − median e|`` (the MAD,
    scaled by ``1.4826 = 1/Φ⁻¹(3/4)`` so that it equals the standard deviation
@@ -25,7 +25,7 @@ Measurement noise (:func:`measurement_residuals`, :func:`measurement_noise`)
 Motion noise (:func:`odometry_increment_errors`, :func:`motion_noise`)
 ----------------------------------------------------------------------
 1. Dead-reckon the odometry with the filter's own model (Euler steps, command
-   held until the next row, :func:`fastslam_edu.motion.move_segment` with zero
+   held until the next row, :func:`fastslam_edu.core.motion.move_segment` with zero
    noise): :func:`dead_reckoning`.
 2. Cut time into windows ``[a, a + τ]`` starting at whole seconds. In each,
    compute the increment of the dead-reckoned path and of the groundtruth,
@@ -64,11 +64,11 @@ import numpy as np
 import pandas as pd
 from scipy.stats import median_abs_deviation
 
-from fastslam_edu.angles import wrap_angle
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.log import Dataset, RobotLog
-from fastslam_edu.measurement import landmark_from_measurement, range_bearing
-from fastslam_edu.se2 import interpolate_poses
-from fastslam_edu.motion import MotionNoise, move_segment
+from fastslam_edu.core.measurement import landmark_from_measurement, range_bearing
+from fastslam_edu.core.se2 import interpolate_poses
+from fastslam_edu.core.motion import MotionNoise, move_segment
 
 #: Default largest groundtruth gap [s] to interpolate over (1 Hz data have 1 s gaps; a removed glitch makes 2 s).
 MAX_GAP = 1.5
@@ -597,7 +597,7 @@ def dead_reckoning(odometry: pd.DataFrame, times, x0=(0.0, 0.0, 0.0)) -> np.ndar
 
     The command ``(v_i, ω_i)`` of row ``i`` is held from ``t_i`` until the
     next row (zero before the first row); the path is a chain of Euler steps
-    (:func:`fastslam_edu.motion.move_segment` with zero noise) between the
+    (:func:`fastslam_edu.core.motion.move_segment` with zero noise) between the
     sorted union of the odometry times and ``times``, starting at ``x0`` at
     ``min(times[0], t_0)``.
 
@@ -824,7 +824,7 @@ class RandomWalkFit:
     slope_theta: float
 
     def motion_noise(self) -> MotionNoise:
-        """The densities as a control-mode :class:`~fastslam_edu.motion.MotionNoise`."""
+        """The densities as a control-mode :class:`~fastslam_edu.core.motion.MotionNoise`."""
         return MotionNoise(mode="control", sigma_v=self.sigma_v, sigma_omega=self.sigma_omega)
 
 
@@ -909,7 +909,7 @@ def estimate_noise(dataset: Dataset, robots: Iterable[int] | None = None, *, win
     -------
     dict
         ``measurement`` (:class:`MeasurementNoise`, pooled), ``motion``
-        (:class:`~fastslam_edu.motion.MotionNoise`, pooled), ``random_walk``
+        (:class:`~fastslam_edu.core.motion.MotionNoise`, pooled), ``random_walk``
         (:class:`RandomWalkFit`, pooled), ``variances`` (pooled
         :func:`increment_variances` table), ``range_fit`` ``(a, b)`` of
         :func:`fit_range_noise` (None if < 2 bins), ``per_robot``

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 
-from .fastslam import MODES, PROPOSALS, FastSLAMParams
+from fastslam_edu.landmark.fastslam import MODES, PROPOSALS, FastSLAMParams
 
 
 def _positive_int(text: str) -> int:
@@ -63,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--proposal", choices=PROPOSALS, default="motion",
                      help="motion: FastSLAM 1.0 (default); fastslam2: FastSLAM 2.0's proposal")
     run.add_argument("--smooth", action="store_true",
-                     help="also solve the whole log by least squares from the filter's result (fastslam_edu.smoother): "
+                     help="also solve the whole log by least squares from the filter's result (fastslam_edu.landmark.smoother): "
                           "the best estimate under the same model; its figures go under 'smoother'")
     run.add_argument("--resampler", choices=("systematic", "stratified", "residual", "multinomial"), default="systematic")
     run.add_argument("--no-audit", action="store_true", help="do not correct swapped landmark table entries")
@@ -90,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     gs.add_argument("--map", type=Path, help="write the map and path to this PNG")
     gs.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    from .datasets.registry import add_arguments as add_data_arguments
+    from fastslam_edu.datasets.registry import add_arguments as add_data_arguments
 
     add_data_arguments(sub.add_parser("data", help="fetch (or --check) the registered datasets into $FASTSLAM_EDU_DATA, "
                                                    "one line per dataset"))
@@ -113,7 +113,7 @@ def _laser_format(path: Path, given: str | None) -> str:
 
 
 def _read_laser(path: Path, fmt: str, what: str, joints: Path | None = None):
-    from .datasets.laser import read_carmen, read_intel_json
+    from fastslam_edu.datasets.laser import read_carmen, read_intel_json
 
     if not path.is_file():
         raise FileNotFoundError(f"{what} {path}: no such file")
@@ -126,9 +126,9 @@ def _read_laser(path: Path, fmt: str, what: str, joints: Path | None = None):
 
 
 def _read_thor_planar(path: Path, joints: Path | None, what: str):
-    """A THOR LiDAR log projected to the body's horizontal plane (:func:`fastslam_edu.thor.planar_laser_log`)."""
-    from .datasets.laser import read_thor_joints, read_thor_lidar
-    from .thor import planar_laser_log
+    """A THOR LiDAR log projected to the body's horizontal plane (:func:`fastslam_edu.grid.thor.planar_laser_log`)."""
+    from fastslam_edu.datasets.laser import read_thor_joints, read_thor_lidar
+    from fastslam_edu.grid.thor import planar_laser_log
 
     if joints is None:
         raise ValueError(f"{what} {path}: THOR scans need the joint log (head/neck angles): add --joints FILE")
@@ -143,7 +143,7 @@ def _read_thor_planar(path: Path, joints: Path | None, what: str):
 
 
 def cmd_run(args) -> int:
-    from .experiment import run_mrclam
+    from fastslam_edu.app.experiment import run_mrclam
 
     if not args.data.is_dir():
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
@@ -161,8 +161,8 @@ def cmd_run(args) -> int:
             "landmark_error_aligned_mean_m", "steps", "measurements_used", "measurements_rejected", "filter_seconds")
     rows = [(k, summary.get(k)) for k in keys]
     if args.smooth:
-        from .experiment import summarize_smoother
-        from .smoother import smooth
+        from fastslam_edu.app.experiment import summarize_smoother
+        from fastslam_edu.landmark.smoother import smooth
 
         summary["smoother"] = summarize_smoother(smooth(ctx["stream"], params, initial=result), ctx["dataset"], ctx["log"])
         rows += [(f"smoother.{k}", summary["smoother"].get(k)) for k in keys[:5] + ("smoother_seconds",)]
@@ -175,8 +175,8 @@ def cmd_run(args) -> int:
         import matplotlib
 
         matplotlib.use("Agg")
-        from . import metrics
-        from .plotting import run_figure
+        from fastslam_edu.evaluation import metrics
+        from fastslam_edu.app.plotting import run_figure
 
         log, dataset = ctx["log"], ctx["dataset"]
         errs = None
@@ -195,9 +195,9 @@ def cmd_run(args) -> int:
 def cmd_gridslam(args) -> int:
     import numpy as np
 
-    from .datasets.laser import read_relations
-    from .gridslam import GridSLAMParams, run_grid_slam
-    from .relations import score_trajectory
+    from fastslam_edu.datasets.laser import read_relations
+    from fastslam_edu.grid.gridslam import GridSLAMParams, run_grid_slam
+    from fastslam_edu.evaluation.relations import score_trajectory
 
     if not (args.tolerance >= 0):
         raise ValueError(f"--tolerance must be ≥ 0, got {args.tolerance}")
@@ -293,7 +293,7 @@ def _save_grid_map(result, path: Path, title: str) -> None:
 
 def cmd_data(args) -> int:
     """``fastslam-edu data [NAME ...] [--check] [--quiet]``: see :mod:`fastslam_edu.datasets.registry`."""
-    from .datasets.registry import run_command
+    from fastslam_edu.datasets.registry import run_command
 
     return run_command(args)
 

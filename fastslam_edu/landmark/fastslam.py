@@ -5,15 +5,15 @@ The filter of Montemerlo et al. (2002), in the order of the MR.CLAM write-up's
 ``combine_particles``:
 
 1. **Propagate** every particle's pose by sampling the motion model,
-   :math:`x_t^{[m]} \\sim p(x_t \\mid x_{t-1}^{[m]}, u_t)` (:mod:`fastslam_edu.motion`).
+   :math:`x_t^{[m]} \\sim p(x_t \\mid x_{t-1}^{[m]}, u_t)` (:mod:`fastslam_edu.core.motion`).
 2. **Update** for each measurement :math:`z = (r, \\phi)` of landmark :math:`k`:
    a landmark seen for the first time is initialised from the inverse model
-   (:func:`fastslam_edu.ekf.initialise_landmark`); otherwise its 2×2 EKF is
+   (:func:`fastslam_edu.core.ekf.initialise_landmark`); otherwise its 2×2 EKF is
    updated and the particle's log weight grows by the log-likelihood
-   :math:`\\log \\mathcal N(\\nu; 0, Q)` (:func:`fastslam_edu.ekf.update_landmark`), times the
+   :math:`\\log \\mathcal N(\\nu; 0, Q)` (:func:`fastslam_edu.core.ekf.update_landmark`), times the
    fraction :math:`\\beta \\le 1` of independent evidence the sighting carries
    (:func:`evidence_fractions`; 1 in the textbook).
-3. **Resample** (:mod:`fastslam_edu.resampling`) when the effective sample size
+3. **Resample** (:mod:`fastslam_edu.core.resampling`) when the effective sample size
    :math:`N_\\text{eff} = 1/\\sum_m (w^{[m]})^2` falls below a fraction of
    :math:`M` (default 0.5); weights are reset to uniform afterwards.
 4. **Combine**: the weighted mean pose and map, and the highest-weight particle.
@@ -29,11 +29,11 @@ logw       (M,)            :math:`\\log w^{[m]}` (unnormalised)
 =========  ==============  ==========================================
 
 Steps 1 and 2 run particle by particle, as table 13.1 of *Probabilistic
-Robotics* reads, in the compiled kernels of :mod:`fastslam_edu.fastslam_step`;
+Robotics* reads, in the compiled kernels of :mod:`fastslam_edu.landmark.fastslam_step`;
 this module holds the particle set, the resampling and combining steps and the
 driver that runs them over a log.
 
-What real data needs beyond the textbook (see :mod:`fastslam_edu.noise_estimation`):
+What real data needs beyond the textbook (see :mod:`fastslam_edu.evaluation.noise_estimation`):
 noise densities per √s (independent of the odometry rate), and a gate against
 outlier measurements: a measurement is rejected when, for *every* particle,
 its squared Mahalanobis distance exceeds ``gate_chi2`` (default: the point of
@@ -49,14 +49,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from .datasets.log import EventStream
-from .angles import wrap_angle
-from .fastslam_step import Particles, Sightings, sample_segment, standard_normals, update_particles
-from .motion import MotionNoise, move_segment
-from .params import Params
-from .proposal import motion_prediction, sample_improved_poses, segment_motion
-from .resampling import get_resampler
-from .weights import weights_from_log
+from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.landmark.fastslam_step import Particles, Sightings, sample_segment, standard_normals, update_particles
+from fastslam_edu.core.motion import MotionNoise, move_segment
+from fastslam_edu.core.params import Params
+from fastslam_edu.landmark.proposal import motion_prediction, sample_improved_poses, segment_motion
+from fastslam_edu.core.resampling import get_resampler
+from fastslam_edu.core.weights import weights_from_log
 
 MODES = ("slam", "localize", "map")
 PROPOSALS = ("motion", "fastslam2")
@@ -79,7 +79,7 @@ class FastSLAMParams(Params):
     """Settings of the filter.
 
     Where the defaults come from (measured against groundtruth on every robot of
-    MR.CLAM Datasets 1 and 6; :mod:`fastslam_edu.noise_estimation`, chapters "The
+    MR.CLAM Datasets 1 and 6; :mod:`fastslam_edu.evaluation.noise_estimation`, chapters "The
     MR.CLAM data" and "From textbook to real data"; ``benchmarks/fastslam_accuracy.py``
     prints the errors they give):
 
@@ -141,18 +141,18 @@ class FastSLAMParams(Params):
     proposal : str
         ``"motion"`` (FastSLAM 1.0, the default: poses sampled from the motion
         model alone) or ``"fastslam2"`` (FastSLAM 2.0's proposal, poses sampled
-        given the sighting too, :mod:`fastslam_edu.proposal`; chapter "FastSLAM 2.0's
+        given the sighting too, :mod:`fastslam_edu.landmark.proposal`; chapter "FastSLAM 2.0's
         proposal" and ``benchmarks/fastslam_accuracy.py --proposal`` measure what it gives).
     range_std_slope : float
         Growth of the range noise with range [m/m]: the filter uses
         :math:`\\sigma_r(r) = \\sqrt{R_{00}} + \\text{slope}\\cdot r` for a measurement of range
         :math:`r` (MR.CLAM's camera estimates range from the barcode's apparent
-        size; its error grows ~3 cm per metre, see :mod:`fastslam_edu.noise_estimation`).
+        size; its error grows ~3 cm per metre, see :mod:`fastslam_edu.evaluation.noise_estimation`).
     odometry_scale : (float, float)
         Calibration :math:`(k_v, k_\\omega)` of the commands: the filter moves with
         :math:`(k_v v, k_\\omega \\omega)`. MR.CLAM's odometry is the *commanded*
         velocity, and the robots turn less than commanded (see
-        :mod:`fastslam_edu.noise_estimation`).
+        :mod:`fastslam_edu.evaluation.noise_estimation`).
     """
 
     n_particles: int = 100
@@ -250,7 +250,7 @@ class ParticleSet:
         return self
 
     def arrays(self) -> Particles:
-        """The arrays as the step's kernels take them (:class:`fastslam_edu.fastslam_step.Particles`), shared."""
+        """The arrays as the step's kernels take them (:class:`fastslam_edu.landmark.fastslam_step.Particles`), shared."""
         return Particles(self.poses, self.mu, self.sigma, self.seen, self.count, self.logw)
 
     def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
@@ -260,7 +260,7 @@ class ParticleSet:
                                         power=power, proposal_loglik=proposal_loglik)
 
     def to_particle_set(self) -> "ParticleSet":
-        """The set as dense arrays: itself (see the tree storage of :mod:`fastslam_edu.fastslam_tree`)."""
+        """The set as dense arrays: itself (see the tree storage of :mod:`fastslam_edu.landmark.fastslam_tree`)."""
         return self
 
     def select(self, indices) -> "ParticleSet":
@@ -297,7 +297,7 @@ def propagate(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.
     Returns
     -------
     path : ndarray (M, L, 3)
-        Every particle's pose after each step (:func:`fastslam_edu.motion.move_segment`,
+        Every particle's pose after each step (:func:`fastslam_edu.core.motion.move_segment`,
         the same random numbers as :func:`propagate_segment`); ``particles.poses`` is
         set to the poses after the last step.
     """
@@ -324,7 +324,7 @@ def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np
     The same random numbers as :func:`propagate`, but instead of every
     particle's path (M, L, 3) it returns what the filter records at each step:
     the weighted-mean pose and the pose of the highest-weight particle
-    (:func:`fastslam_edu.fastslam_step.sample_segment`).
+    (:func:`fastslam_edu.landmark.fastslam_step.sample_segment`).
 
     Parameters
     ----------
@@ -370,7 +370,7 @@ def update_with_measurements(
     """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,), in order.
 
     Lines 5–17 of table 13.1 for every particle
-    (:func:`fastslam_edu.fastslam_step.update_particles`): particles that have not
+    (:func:`fastslam_edu.landmark.fastslam_step.update_particles`): particles that have not
     seen a landmark initialise it (:math:`\\mu = h^{-1}(x, z)`, :math:`\\Sigma = G R G^\\top`) and
     keep their weight; the others update its EKF and add
     :math:`\\beta \\log \\mathcal N(\\nu; 0, Q)` to their log weight. With
@@ -395,7 +395,7 @@ def update_with_measurements(
         Exponents :math:`\\beta` of their likelihoods (:func:`evidence_fractions`; default 1).
     proposal_loglik : (M, n), optional
         Where not NaN, log-likelihoods to weigh with instead of FastSLAM 1.0's
-        (:func:`fastslam_edu.proposal.sample_improved_poses`).
+        (:func:`fastslam_edu.landmark.proposal.sample_improved_poses`).
 
     Returns
     -------
@@ -602,7 +602,7 @@ class MotionProposal:
 
 
 class ImprovedProposal(MotionProposal):
-    """FastSLAM 2.0's proposal: poses drawn given the sightings too (:mod:`fastslam_edu.proposal`)."""
+    """FastSLAM 2.0's proposal: poses drawn given the sightings too (:mod:`fastslam_edu.landmark.proposal`)."""
 
     def move(self, run, s, e, n_record):
         run.x_start = run.particles.poses.copy()
@@ -856,7 +856,7 @@ def run_fastslam(
     landmarks : (K, 2) known landmark positions, needed for ``mode="localize"``.
     groundtruth_poses : callable ``t -> (n, 3)`` poses, needed for ``mode="map"``.
     particle_class : how particles store their maps: :class:`ParticleSet` (dense
-        arrays, the default) or :class:`fastslam_edu.fastslam_tree.TreeParticleSet`
+        arrays, the default) or :class:`fastslam_edu.landmark.fastslam_tree.TreeParticleSet`
         (Montemerlo's trees); anything with the same ``initial``, ``with_known_map``,
         ``update``, ``select``, ``weights`` and ``to_particle_set``. The result's
         ``particles`` is always dense; ``final`` is the set as stored.

@@ -1,0 +1,1 @@
+"""Grid SLAM: the log-odds occupancy grid, the grid particle filter with scan matching, THOR's geometry."""
