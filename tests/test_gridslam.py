@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from fastslam_edu.grid.occupancy import OccupancyGrid, bresenham, map_correlation, scan_endpoints
+from fastslam_edu.grid.occupancy import (OccupancyGrid, bresenham, map_correlation, ray_cells_batch, scan_endpoints,
+                                         update_maps)
 from fastslam_edu.grid.gridslam import (
     GridSLAMParams,
     ancestral_path,
@@ -18,12 +19,10 @@ from fastslam_edu.grid.gridslam import (
     endpoint_cells,
     hit_field,
     increment_noise_std,
-    ray_cells_batch,
     run_grid_slam,
     run_grid_slam_loop,
     sample_motion,
     scan_match,
-    update_maps,
 )
 from fastslam_edu.evaluation.relations import reference_errors
 from fastslam_edu.datasets.sim import simulate_laser_world

@@ -253,8 +253,8 @@ def test_interpolate_tolerance_and_span_error():
     [
         ([0.5], [0.0, 1.0, 1.0], np.zeros((3, 3)), r"strictly increasing, but t_gt\[1\] = 1.0"),
         ([0.5], [0.0, 1.0], np.zeros((2, 2)), r"shape \(T, 3\)"),
-        ([np.nan], [0.0, 1.0], np.zeros((2, 3)), "t_query contains 1 NaN"),
-        ([0.5], [0.0, 1.0], [[0.0, 0.0, np.nan], [0.0, 0.0, 0.0]], "poses_gt contains 1 NaN"),
+        ([np.nan], [0.0, 1.0], np.zeros((2, 3)), r"interpolate_poses: t_query contains a non-finite value \(nan\) at index \(0,\)"),
+        ([0.5], [0.0, 1.0], [[0.0, 0.0, np.nan], [0.0, 0.0, 0.0]], r"interpolate_poses: poses_gt contains a non-finite value \(nan\) at index \(0, 2\)"),
         ([[0.5]], [0.0, 1.0], np.zeros((2, 3)), "t_query must be 1-D"),
     ],
 )

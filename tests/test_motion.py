@@ -279,8 +279,8 @@ def test_rate_test_naive_per_step_std_fails():
 @pytest.mark.parametrize(
     "call, message",
     [
-        (lambda: propagate([0, 0, np.nan], [1, 1], 0.1), "NaN"),
-        (lambda: propagate([0, 0, 0], [np.inf, 1], 0.1), "NaN or inf"),
+        (lambda: propagate([0, 0, np.nan], [1, 1], 0.1), r"propagate: x \(poses x, y, θ\) contains a non-finite value \(nan\) at index \(2,\)"),
+        (lambda: propagate([0, 0, 0], [np.inf, 1], 0.1), r"propagate: u \(commands v, ω\) contains a non-finite value \(inf\)"),
         (lambda: propagate([0, 0, 0], [1, 1], -0.1), "dt"),
         (lambda: propagate([0, 0, 0], [1, 1], float("nan")), "dt"),
         (lambda: propagate([0, 0, 0], [1, 1], "a"), "dt"),

@@ -43,9 +43,9 @@ import numpy as np
 from numba import njit
 
 from fastslam_edu.core.angles import wrap_one
+from fastslam_edu.core.checks import finite_array
 
 from fastslam_edu.core.measurement import (
-    _as_finite,
     _at,
     innovation,
     jacobian_inverse,
@@ -92,7 +92,7 @@ def _check_covariance(name: str, A, caller: str) -> np.ndarray:
     Cheap 2×2 test: ``A₀₀ > 0`` and ``det A > 0`` (Sylvester's criterion), and
     ``|A₀₁ − A₁₀|`` at rounding level.
     """
-    A = _as_finite(name, A, (2, 2), caller)
+    A = finite_array(name, A, caller, (2, 2))
     asym = np.abs(A[..., 0, 1] - A[..., 1, 0])
     scale = np.abs(A[..., 0, 0]) + np.abs(A[..., 1, 1])
     bad = (asym > 1e-9 * scale) | (A[..., 0, 0] <= 0) | (_det2(A) <= 0)
@@ -103,6 +103,12 @@ def _check_covariance(name: str, A, caller: str) -> np.ndarray:
             f"it is {A[i].tolist()} (det = {float(_det2(A[i]))})"
         )
     return A
+
+
+def _check_update_inputs(mu, Sigma, x, z, R, caller: str):
+    """The arguments of an EKF update as float arrays, checked (finite, shapes, Σ and R positive definite)."""
+    return (finite_array("mu", mu, caller, (2,)), _check_covariance("Sigma", Sigma, caller),
+            finite_array("x", x, caller, (3,)), finite_array("z", z, caller, (2,)), _check_covariance("R", R, caller))
 
 
 def gaussian_log_likelihood(nu, Q) -> np.ndarray:
@@ -128,7 +134,7 @@ def gaussian_log_likelihood(nu, Q) -> np.ndarray:
     ndarray, shape (...)
         Log-likelihood (natural log of a density in 1/(m·rad)).
     """
-    nu = _as_finite("nu", nu, (2,), "gaussian_log_likelihood")
+    nu = finite_array("nu", nu, "gaussian_log_likelihood", (2,))
     Q = _check_covariance("Q", Q, "gaussian_log_likelihood")
     det = _det2(Q)
     mahalanobis2 = np.einsum("...i,...ij,...j->...", nu, _inv2(Q, det), nu)
@@ -163,7 +169,7 @@ def initialise_landmark(x, z, R) -> tuple[np.ndarray, np.ndarray]:
     Sigma : ndarray, shape (..., 2, 2)
         Landmark covariance [m²], symmetric positive definite.
     """
-    z = _as_finite("z", z, (2,), "initialise_landmark")
+    z = finite_array("z", z, "initialise_landmark", (2,))
     R = _check_covariance("R", R, "initialise_landmark")
     if (z[..., 0] <= 0).any():
         i = tuple(int(k) for k in np.argwhere(z[..., 0] <= 0)[0])
@@ -187,12 +193,7 @@ def innovation_statistics(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray]:
 
     Shapes as in :func:`update_landmark`; returns ``nu (..., 2)`` and ``d2 (...)``.
     """
-    caller = "innovation_statistics"
-    mu = _as_finite("mu", mu, (2,), caller)
-    Sigma = _check_covariance("Sigma", Sigma, caller)
-    x = _as_finite("x", x, (3,), caller)
-    z = _as_finite("z", z, (2,), caller)
-    R = _check_covariance("R", R, caller)
+    mu, Sigma, x, z, R = _check_update_inputs(mu, Sigma, x, z, R, "innovation_statistics")
     H = jacobian_landmark(x, mu)
     Q = _symmetrise(H @ Sigma @ _transpose(H) + R)
     nu = innovation(z, range_bearing(x, mu))
@@ -254,12 +255,7 @@ def update_landmark(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, np.ndar
         On NaN/inf inputs, wrong shapes, a non-positive-definite ``Σ`` or ``R``,
         or a landmark mean exactly on the robot (``r = 0``).
     """
-    caller = "update_landmark"
-    mu = _as_finite("mu", mu, (2,), caller)
-    Sigma = _check_covariance("Sigma", Sigma, caller)
-    x = _as_finite("x", x, (3,), caller)
-    z = _as_finite("z", z, (2,), caller)
-    R = _check_covariance("R", R, caller)
+    mu, Sigma, x, z, R = _check_update_inputs(mu, Sigma, x, z, R, "update_landmark")
 
     jacobian_landmark(x, mu)  # raises a clear ValueError if a landmark sits on the robot (r = 0)
     shape = np.broadcast_shapes(mu.shape[:-1], Sigma.shape[:-2], x.shape[:-1], z.shape[:-1], R.shape[:-2])
@@ -395,11 +391,11 @@ def update_landmark_one(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, flo
         ``log`` of line 18's weight ``w = |2πQ|^(−½) exp(−½ νᵀ Q⁻¹ ν)``.
     """
     caller = "update_landmark_one"
-    mu = _as_finite("mu", mu, (2,), caller)
-    Sigma = _as_finite("Sigma", Sigma, (2, 2), caller)
-    x = _as_finite("x", x, (3,), caller)
-    z = _as_finite("z", z, (2,), caller)
-    R = _as_finite("R", R, (2, 2), caller)
+    mu = finite_array("mu", mu, caller, (2,))
+    Sigma = finite_array("Sigma", Sigma, caller, (2, 2))
+    x = finite_array("x", x, caller, (3,))
+    z = finite_array("z", z, caller, (2,))
+    R = finite_array("R", R, caller, (2, 2))
     if mu.shape != (2,) or Sigma.shape != (2, 2) or x.shape != (3,) or z.shape != (2,):
         raise ValueError(f"{caller}: one landmark only; use update_landmark for batches")
 

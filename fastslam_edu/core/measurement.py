@@ -29,25 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from fastslam_edu.core.angles import wrap_angle
-
-
-def _as_finite(name: str, a, trailing: tuple[int, ...], caller: str) -> np.ndarray:
-    """``a`` as a float array of shape ``(..., *trailing)`` with only finite values.
-
-    Raises a ValueError naming ``caller``, the argument ``name`` and the
-    offending shape or the index of the first NaN/inf.
-    """
-    a = np.asarray(a, dtype=float)
-    n = len(trailing)
-    if a.ndim < n or a.shape[a.ndim - n :] != trailing:
-        want = "(..., " + ", ".join(str(t) for t in trailing) + ")"
-        raise ValueError(f"{caller}: {name} must have shape {want}, got shape {a.shape}")
-    if not np.isfinite(a).all():
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
-        raise ValueError(
-            f"{caller}: {name} contains a non-finite value ({float(a[bad])}) at index {bad}"
-        )
-    return a
+from fastslam_edu.core.checks import finite_array
 
 
 def _first_where(mask: np.ndarray) -> tuple[int, ...]:
@@ -80,6 +62,15 @@ def _nonzero_range(x, m, dx, dy, caller: str) -> np.ndarray:
     return q
 
 
+def _offsets_and_range(x, m, caller: str):
+    """``δx, δy, r², r`` of landmark(s) ``m`` seen from pose(s) ``x``, checked (finite, r > 0)."""
+    x = finite_array("x", x, caller, (3,))
+    m = finite_array("m", m, caller, (2,))
+    dx, dy = _offsets(x, m)
+    q = _nonzero_range(x, m, dx, dy, caller)
+    return dx, dy, q, np.sqrt(q)
+
+
 def _nonnegative_range(z: np.ndarray, caller: str) -> None:
     """Refuse negative ranges (often a sign of swapped (r, φ) columns)."""
     if (z[..., 0] < 0).any():
@@ -108,8 +99,8 @@ def range_bearing(x, m) -> np.ndarray:
     z : ndarray, shape (..., 2)
         ``(r, φ)``: range [m] and bearing [rad] in (−π, π].
     """
-    x = _as_finite("x", x, (3,), "range_bearing")
-    m = _as_finite("m", m, (2,), "range_bearing")
+    x = finite_array("x", x, "range_bearing", (3,))
+    m = finite_array("m", m, "range_bearing", (2,))
     dx, dy = _offsets(x, m)
     r = np.hypot(dx, dy)
     phi = np.asarray(wrap_angle(np.arctan2(dy, dx) - x[..., 2]))
@@ -133,8 +124,8 @@ def landmark_from_measurement(x, z) -> np.ndarray:
     m : ndarray, shape (..., 2)
         Landmark position ``(m_x, m_y)`` [m] in the world frame.
     """
-    x = _as_finite("x", x, (3,), "landmark_from_measurement")
-    z = _as_finite("z", z, (2,), "landmark_from_measurement")
+    x = finite_array("x", x, "landmark_from_measurement", (3,))
+    z = finite_array("z", z, "landmark_from_measurement", (2,))
     _nonnegative_range(z, "landmark_from_measurement")
     r, angle = z[..., 0], z[..., 1] + x[..., 2]
     return np.stack((x[..., 0] + r * np.cos(angle), x[..., 1] + r * np.sin(angle)), axis=-1)
@@ -168,11 +159,7 @@ def jacobian_landmark(x, m) -> np.ndarray:
     ValueError
         If a landmark lies exactly on the robot (``r = 0``).
     """
-    x = _as_finite("x", x, (3,), "jacobian_landmark")
-    m = _as_finite("m", m, (2,), "jacobian_landmark")
-    dx, dy = _offsets(x, m)
-    q = _nonzero_range(x, m, dx, dy, "jacobian_landmark")
-    r = np.sqrt(q)
+    dx, dy, q, r = _offsets_and_range(x, m, "jacobian_landmark")
     row_r = np.stack((dx / r, dy / r), axis=-1)
     row_phi = np.stack((-dy / q, dx / q), axis=-1)
     return np.stack((row_r, row_phi), axis=-2)
@@ -205,11 +192,7 @@ def jacobian_pose(x, m) -> np.ndarray:
     ValueError
         If a landmark lies exactly on the robot (``r = 0``).
     """
-    x = _as_finite("x", x, (3,), "jacobian_pose")
-    m = _as_finite("m", m, (2,), "jacobian_pose")
-    dx, dy = _offsets(x, m)
-    q = _nonzero_range(x, m, dx, dy, "jacobian_pose")
-    r = np.sqrt(q)
+    dx, dy, q, r = _offsets_and_range(x, m, "jacobian_pose")
     zero, one = np.zeros_like(r), np.ones_like(r)
     row_r = np.stack((-dx / r, -dy / r, zero), axis=-1)
     row_phi = np.stack((dy / q, -dx / q, -one), axis=-1)
@@ -240,8 +223,8 @@ def jacobian_inverse(x, z) -> np.ndarray:
     G : ndarray, shape (..., 2, 2)
         Units: column r is dimensionless, column φ is m/rad.
     """
-    x = _as_finite("x", x, (3,), "jacobian_inverse")
-    z = _as_finite("z", z, (2,), "jacobian_inverse")
+    x = finite_array("x", x, "jacobian_inverse", (3,))
+    z = finite_array("z", z, "jacobian_inverse", (2,))
     _nonnegative_range(z, "jacobian_inverse")
     r, angle = z[..., 0], z[..., 1] + x[..., 2]
     c, s = np.cos(angle), np.sin(angle)
@@ -264,8 +247,8 @@ def innovation(z, z_hat) -> np.ndarray:
     nu : ndarray, shape (..., 2)
         ``(Δr [m], Δφ [rad] in (−π, π])``.
     """
-    z = _as_finite("z", z, (2,), "innovation")
-    z_hat = _as_finite("z_hat", z_hat, (2,), "innovation")
+    z = finite_array("z", z, "innovation", (2,))
+    z_hat = finite_array("z_hat", z_hat, "innovation", (2,))
     dr = z[..., 0] - z_hat[..., 0]
     dphi = np.asarray(wrap_angle(z[..., 1] - z_hat[..., 1]))
     return np.stack(np.broadcast_arrays(dr, dphi), axis=-1)

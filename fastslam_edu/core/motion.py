@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.core.checks import finite_array
 from fastslam_edu.core.params import Params
 
 _MODES = ("control", "state")
@@ -197,22 +198,12 @@ def _check_dt(dt: float) -> float:
     return value
 
 
-def _check_array(a, name: str, last: int, meaning: str) -> np.ndarray:
-    a = np.asarray(a, dtype=float)
-    if a.ndim == 0 or a.shape[-1] != last:
-        raise ValueError(f"{name} must have shape (..., {last}) {meaning}, got shape {a.shape}")
-    if not np.isfinite(a).all():
-        bad = np.argwhere(~np.isfinite(a))[:5].tolist()
-        raise ValueError(f"{name} contains NaN or inf at indices {bad} (first 5 shown)")
-    return a
+def _check_poses(x, caller: str) -> np.ndarray:
+    return finite_array("x (poses x, y, θ)", x, caller, (3,))
 
 
-def _check_poses(x) -> np.ndarray:
-    return _check_array(x, "x", 3, "(poses x, y, θ)")
-
-
-def _check_controls(u) -> np.ndarray:
-    return _check_array(u, "u", 2, "(commands v, ω)")
+def _check_controls(u, caller: str) -> np.ndarray:
+    return finite_array("u (commands v, ω)", u, caller, (2,))
 
 
 # --------------------------------------------------------------------------- model
@@ -274,7 +265,7 @@ def propagate(x, u, dt: float) -> np.ndarray:
     ValueError
         Wrong shapes, NaN/inf, or a negative ``dt``.
     """
-    x, u, dt = _check_poses(x), _check_controls(u), _check_dt(dt)
+    x, u, dt = _check_poses(x, "propagate"), _check_controls(u, "propagate"), _check_dt(dt)
     return advance(x, u[..., 0] * dt, u[..., 1] * dt)
 
 
@@ -295,7 +286,7 @@ def propagate_arc(x, u, dt: float) -> np.ndarray:
 
     Parameters and returns as :func:`propagate`.
     """
-    x, u, dt = _check_poses(x), _check_controls(u), _check_dt(dt)
+    x, u, dt = _check_poses(x, "propagate_arc"), _check_controls(u, "propagate_arc"), _check_dt(dt)
     v, omega = u[..., 0], u[..., 1]
     half_turn = omega * dt / 2.0
     chord = v * dt * np.sinc(half_turn / np.pi)  # numpy's sinc is sin(πa)/(πa)
@@ -340,7 +331,7 @@ def move(x, u, dt: float, noise: MotionNoise, eps) -> np.ndarray:
     -------
     ndarray, shape (M, 3) or (..., 3)
     """
-    x, u, dt = _check_poses(x), _check_controls(u), _check_dt(dt)
+    x, u, dt = _check_poses(x, "move"), _check_controls(u, "move"), _check_dt(dt)
     if not isinstance(noise, MotionNoise):
         raise ValueError(f"noise must be a MotionNoise, got {type(noise).__name__}")
     batch = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
@@ -363,7 +354,7 @@ def move(x, u, dt: float, noise: MotionNoise, eps) -> np.ndarray:
 
 
 def _check_segment(x, u, dt, noise, eps) -> None:
-    x = _check_poses(x)
+    x = _check_poses(x, "move_segment")
     u = np.asarray(u, dtype=float)
     dt = np.asarray(dt, dtype=float)
     if x.ndim != 2 or u.ndim != 2 or u.shape[1] != 2 or dt.shape != (u.shape[0],):
@@ -487,7 +478,7 @@ def sample_motion(x, u, dt: float, noise: MotionNoise, rng: np.random.Generator)
         raise ValueError(
             f"rng must be a numpy.random.Generator (np.random.default_rng(seed)), got {type(rng).__name__}"
         )
-    x, u = _check_poses(x), _check_controls(u)
+    x, u = _check_poses(x, "sample_motion"), _check_controls(u, "sample_motion")
     if not isinstance(noise, MotionNoise):
         raise ValueError(f"noise must be a MotionNoise, got {type(noise).__name__}")
     batch = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])

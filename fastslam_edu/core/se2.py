@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.core.checks import finite_array
 
 __all__ = [
     "interpolate_poses",
@@ -201,13 +202,6 @@ def compose_increments(x0, increments) -> np.ndarray:
 DEFAULT_TIME_TOLERANCE = 0.5
 
 
-def _float_array(a, name: str) -> np.ndarray:
-    try:
-        return np.asarray(a, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be an array of real numbers, got {a!r}") from exc
-
-
 def interpolate_poses(t_query, t_gt, poses_gt, *, tolerance: float = DEFAULT_TIME_TOLERANCE) -> np.ndarray:
     """Groundtruth poses at arbitrary times, by linear interpolation.
 
@@ -239,16 +233,13 @@ def interpolate_poses(t_query, t_gt, poses_gt, *, tolerance: float = DEFAULT_TIM
         ``tolerance`` (the message states the span), if ``t_gt`` is not
         strictly increasing, or on shape errors / NaN.
     """
-    tq = _float_array(t_query, "t_query")
-    tg = _float_array(t_gt, "t_gt")
-    pg = _float_array(poses_gt, "poses_gt")
+    tq = finite_array("t_query", t_query, "interpolate_poses")
+    tg = finite_array("t_gt", t_gt, "interpolate_poses")
+    pg = finite_array("poses_gt", poses_gt, "interpolate_poses")
     if tq.ndim != 1:
         raise ValueError(f"t_query must be 1-D, got shape {tq.shape}")
     if tg.ndim != 1 or tg.size == 0 or pg.shape != (tg.size, 3):
         raise ValueError(f"t_gt must have shape (T,) with T ≥ 1 and poses_gt shape (T, 3), got {tg.shape} and {pg.shape}")
-    for name, a in (("t_query", tq), ("t_gt", tg), ("poses_gt", pg)):
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{name} contains {int(np.count_nonzero(~np.isfinite(a)))} NaN or inf value(s)")
     steps = np.diff(tg)
     if np.any(steps <= 0):
         j = int(np.flatnonzero(steps <= 0)[0])

@@ -50,6 +50,7 @@ import pandas as pd
 
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.log import Dataset, RobotLog
+from fastslam_edu.core.measurement import range_bearing
 from fastslam_edu.core.motion import MotionNoise, propagate_arc
 
 #: Controller constants: heading gain [1/s], acceleration limits, waypoint radius [m].
@@ -199,25 +200,6 @@ def place_landmarks(rng: np.random.Generator, config: SimConfig) -> np.ndarray:
     return np.array(placed, dtype=float).reshape(-1, 2)
 
 
-def range_bearing(poses: np.ndarray, landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """True range and bearing from every pose to every landmark.
-
-    ``r = ‖m - p‖``, ``φ = wrap(atan2(m_y - y, m_x - x) - θ)``.
-
-    Parameters
-    ----------
-    poses : ndarray, shape (N, 3)
-    landmarks : ndarray, shape (K, 2)
-
-    Returns
-    -------
-    r, phi : ndarrays, shape (N, K) [m], [rad]
-    """
-    dx = landmarks[None, :, 0] - poses[:, None, 0]
-    dy = landmarks[None, :, 1] - poses[:, None, 1]
-    return np.hypot(dx, dy), wrap_angle(np.arctan2(dy, dx) - poses[:, None, 2])
-
-
 # --------------------------------------------------------------------------- robot
 
 
@@ -321,7 +303,8 @@ def measure(
     time, landmark_index, r, phi : ndarrays, shape (n,)
         Ordered by frame, then landmark index.
     """
-    r, phi = range_bearing(frame_poses, landmarks)
+    z = range_bearing(frame_poses[:, None, :], landmarks[None, :, :])  # (N, K, 2)
+    r, phi = z[..., 0], z[..., 1]
     visible = (r >= config.min_range) & (r <= config.max_range) & (phi >= config.fov[0]) & (phi <= config.fov[1])
     frame, k = np.nonzero(visible)
     n = len(frame)
@@ -421,7 +404,7 @@ def simulate_dataset(seed_or_rng: int | np.random.Generator, config: SimConfig |
     return Dataset(path=None, barcodes=barcodes, landmarks=landmarks, robots=robots)
 
 
-__all__ = ["SimConfig", "simulate_dataset", "barcode_of", "place_landmarks", "range_bearing"]
+__all__ = ["SimConfig", "simulate_dataset", "barcode_of", "place_landmarks"]
 
 
 # =========================================================================== a laser world

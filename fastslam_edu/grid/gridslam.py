@@ -84,7 +84,8 @@ from scipy.special import logit
 
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.laser import LaserLog, odometry_increments
-from fastslam_edu.grid.occupancy import OccupancyGrid, bresenham, scan_endpoints
+from fastslam_edu.grid.occupancy import (OccupancyGrid, bresenham, cell_values, ray_cells_batch, scan_endpoints,
+                                         update_maps)
 from fastslam_edu.core.params import Params
 from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.se2 import compose, compose_increments, transform_points
@@ -100,8 +101,6 @@ __all__ = [
     "endpoint_cells",
     "correlation_kernel",
     "correlation",
-    "ray_cells_batch",
-    "update_maps",
     "add_scans",
     "scan_match",
     "ancestral_path",
@@ -467,100 +466,15 @@ def correlation(log_odds, rows, cols, threshold: float = 0.0, kernel=None) -> np
     lo = np.asarray(log_odds)
     if lo.ndim not in (2, 3):
         raise ValueError(f"correlation: log_odds must be (H, W) or (M, H, W), got shape {lo.shape}")
-    h, w = lo.shape[-2:]
     rows, cols = np.asarray(rows), np.asarray(cols)
     if kernel is None:
-        offsets, weights = np.zeros((1, 2), dtype=np.int64), np.ones(1)
-    else:
-        offsets, weights = (np.asarray(k) for k in kernel)
-    r = rows[..., None] + offsets[:, 0]  # (M, ..., B, K)
-    c = cols[..., None] + offsets[:, 1]
-    inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-    r, c = np.clip(r, 0, h - 1), np.clip(c, 0, w - 1)
-    if lo.ndim == 2:
-        v = lo[r, c]
-    else:
-        v = lo[np.arange(lo.shape[0]).reshape((-1,) + (1,) * (r.ndim - 1)), r, c]
-    occupied = (v > threshold) & inside
-    if kernel is None:
-        return occupied[..., 0].sum(axis=-1)
+        return (cell_values(lo, rows, cols, outside=-np.inf) > threshold).sum(axis=-1)
+    offsets, weights = (np.asarray(k) for k in kernel)
+    occupied = cell_values(lo, rows[..., None] + offsets[:, 0], cols[..., None] + offsets[:, 1], outside=-np.inf) > threshold
     return (occupied * weights).max(axis=-1).sum(axis=-1)
 
 
 # --------------------------------------------------------------------------- map updates
-
-
-def ray_cells_batch(starts, ends) -> tuple[np.ndarray, np.ndarray]:
-    """Cells crossed by beams from several start cells at once (one start per particle).
-
-    The closed form of :func:`fastslam_edu.grid.occupancy.ray_cells` (Bresenham's digital
-    line, ``start + sign(Δ)·⌊(2 i |Δ| + n − 1) / (2 n)⌋`` per axis for
-    ``i = 0 … n − 1``, ``n = max |Δ|``) with a start per particle.
-
-    Parameters
-    ----------
-    starts : ndarray of int, shape (M, 2)
-        Sensor cell of each particle.
-    ends : ndarray of int, shape (M, B, 2)
-        Endpoint cells.
-
-    Returns
-    -------
-    free : ndarray of int64, shape (F, 3)
-        ``(particle, row, col)`` of every crossed cell (endpoint excluded).
-    hit : ndarray of int64, shape (M·B, 3)
-        ``(particle, row, col)`` of every endpoint.
-    """
-    s = np.asarray(starts, dtype=np.int64)
-    e = np.asarray(ends, dtype=np.int64)
-    if s.ndim != 2 or s.shape[1] != 2 or e.ndim != 3 or e.shape[0] != s.shape[0] or e.shape[2] != 2:
-        raise ValueError(f"ray_cells_batch: starts must be (M, 2) and ends (M, B, 2), got {s.shape} and {e.shape}")
-    m, b = e.shape[:2]
-    particle = np.repeat(np.arange(m), b)
-    start = np.repeat(s, b, axis=0)  # (M·B, 2)
-    delta = e.reshape(-1, 2) - start
-    n = np.abs(delta).max(axis=1)
-    total = int(n.sum())
-    i = np.arange(total) - np.repeat(np.cumsum(n) - n, n)
-    nk = np.repeat(n, n)
-    free = np.empty((total, 3), dtype=np.int64)
-    free[:, 0] = np.repeat(particle, n)
-    for axis in (0, 1):  # rows, then columns
-        d = delta[:, axis]
-        free[:, axis + 1] = np.repeat(start[:, axis], n) + np.repeat(np.sign(d), n) * (
-            (i * np.repeat(2 * np.abs(d), n) + nk - 1) // (2 * nk)
-        )
-    hit = np.column_stack([particle, e.reshape(-1, 2)])
-    return free, hit
-
-
-def update_maps(maps: np.ndarray, free: np.ndarray, hit: np.ndarray, l_occ: float, l_free: float, l_max: float) -> None:
-    """Log-odds update of several maps in place (the rule of :meth:`OccupancyGrid.update`, per map).
-
-    In each map, a cell crossed by at least one beam gets ``l_free`` once, a
-    cell holding an endpoint gets ``l_occ`` once (the endpoint wins), and the
-    result is clipped to ``[−l_max, l_max]``; cells outside the grid are ignored.
-
-    Parameters
-    ----------
-    maps : ndarray, shape (M, H, W)
-        Modified in place.
-    free, hit : ndarray of int, shape (·, 3)
-        ``(particle, row, col)`` from :func:`ray_cells_batch`.
-    """
-    _, h, w = maps.shape
-
-    def flat(c):
-        ok = (c[:, 1] >= 0) & (c[:, 1] < h) & (c[:, 2] >= 0) & (c[:, 2] < w)
-        c = c[ok]
-        return (c[:, 0] * h + c[:, 1]) * w + c[:, 2]
-
-    lo = maps.reshape(-1)
-    f, k = flat(free), flat(hit)
-    new_free = np.clip(lo[f] + l_free, -l_max, l_max)
-    new_hit = np.clip(lo[k] + l_occ, -l_max, l_max)
-    lo[f] = new_free
-    lo[k] = new_hit
 
 
 def add_scans(maps: np.ndarray, grid: OccupancyGrid, poses, ranges, angles, params: GridSLAMParams,

@@ -45,28 +45,19 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import expit, logit
 
+from fastslam_edu.core.checks import finite_array
 from fastslam_edu.core.se2 import transform_points
 
 __all__ = [
     "OccupancyGrid",
     "bresenham",
     "ray_cells",
+    "ray_cells_batch",
+    "update_maps",
     "scan_endpoints",
     "map_correlation",
+    "cell_values",
 ]
-
-
-def _finite(name: str, a, shape_tail: tuple[int, ...], caller: str, dtype=float) -> np.ndarray:
-    """``a`` as an array of shape ``(..., *shape_tail)`` with finite values, else ValueError."""
-    a = np.asarray(a, dtype=dtype)
-    n = len(shape_tail)
-    if a.ndim < n or a.shape[a.ndim - n :] != shape_tail:
-        want = "(..., " + ", ".join(map(str, shape_tail)) + ")"
-        raise ValueError(f"{caller}: {name} must have shape {want}, got shape {a.shape}")
-    if a.dtype.kind == "f" and not np.isfinite(a).all():
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
-        raise ValueError(f"{caller}: {name} contains a non-finite value ({float(a[bad])}) at index {bad}")
-    return a
 
 
 def _int_cells(name: str, cells, caller: str) -> np.ndarray:
@@ -271,7 +262,7 @@ class OccupancyGrid:
         -------
         ndarray of int64, shape (..., 2)
         """
-        xy = _finite("xy", xy, (2,), "OccupancyGrid.world_to_cell")
+        xy = finite_array("xy", xy, "OccupancyGrid.world_to_cell", (2,))
         col = np.floor((xy[..., 0] - self.origin[0]) / self.resolution)
         row = np.floor((xy[..., 1] - self.origin[1]) / self.resolution)
         return np.stack([row, col], axis=-1).astype(np.int64)
@@ -341,13 +332,13 @@ class OccupancyGrid:
             Sensor position in the robot frame [m]: beams start at
             ``pose ⊕ sensor_offset``.
         """
-        pose = _finite("pose", pose, (3,), "OccupancyGrid.update")
+        pose = finite_array("pose", pose, "OccupancyGrid.update", (3,))
         if pose.shape != (3,):
             raise ValueError(f"OccupancyGrid.update: pose must have shape (3,), got {pose.shape}")
-        ends = _finite("endpoints", endpoints, (2,), "OccupancyGrid.update")
+        ends = finite_array("endpoints", endpoints, "OccupancyGrid.update", (2,))
         if ends.ndim != 2:
             raise ValueError(f"OccupancyGrid.update: endpoints must have shape (n, 2), got {ends.shape}")
-        sensor = transform_points(pose, _finite("sensor_offset", sensor_offset, (2,), "OccupancyGrid.update"))
+        sensor = transform_points(pose, finite_array("sensor_offset", sensor_offset, "OccupancyGrid.update", (2,)))
         free, hit = ray_cells(self.world_to_cell(sensor), self.world_to_cell(ends))
         self._add(free, hit)
 
@@ -359,18 +350,11 @@ class OccupancyGrid:
         ``a[idx] = v`` with repeated indices writes the same value repeatedly,
         so a cell crossed by many beams is still updated once.)
         """
+        free = np.column_stack([np.zeros(len(free_cells), dtype=np.int64), free_cells])  # as map 0 of one
+        hit = np.column_stack([np.zeros(len(hit_cells), dtype=np.int64), hit_cells])
+        update_maps(self.log_odds[None], free, hit, self.l_occ, self.l_free, self.l_max)
         h, w = self.shape
-
-        def flat(c: np.ndarray) -> np.ndarray:
-            ok = (c[:, 0] >= 0) & (c[:, 0] < h) & (c[:, 1] >= 0) & (c[:, 1] < w)
-            return c[ok, 0] * w + c[ok, 1]
-
-        free_flat, hit_flat = flat(free_cells), flat(hit_cells)
-        lo = self.log_odds.reshape(-1)  # a view: writes go to the grid
-        new_free = np.clip(lo[free_flat] + self.l_free, -self.l_max, self.l_max)
-        new_hit = np.clip(lo[hit_flat] + self.l_occ, -self.l_max, self.l_max)
-        lo[free_flat] = new_free
-        lo[hit_flat] = new_hit  # last: the endpoint wins over "crossed"
+        free_flat, hit_flat = _flat_index(free, h, w), _flat_index(hit, h, w)
         seen = self.observed.reshape(-1)
         seen[free_flat] = True
         seen[hit_flat] = True
@@ -455,18 +439,81 @@ def ray_cells(start, ends) -> tuple[np.ndarray, np.ndarray]:
     e = _int_cells("ends", ends, "ray_cells")
     if s.shape != (2,) or e.ndim != 2:
         raise ValueError(f"ray_cells: start must have shape (2,) and ends (n, 2), got {s.shape} and {e.shape}")
-    delta = e - s  # (n, 2)
-    n = np.abs(delta).max(axis=1)  # steps along the major axis, per beam
+    free, hit = ray_cells_batch(s[None], e[None])  # one start: particle 0
+    return free[:, 1:], hit[:, 1:]
+
+
+def ray_cells_batch(starts, ends) -> tuple[np.ndarray, np.ndarray]:
+    """Cells crossed by beams from several start cells at once (one start per particle).
+
+    The closed form of :func:`bresenham` (Bresenham's digital
+    line, ``start + sign(Δ)·⌊(2 i |Δ| + n − 1) / (2 n)⌋`` per axis for
+    ``i = 0 … n − 1``, ``n = max |Δ|``) with a start per particle.
+
+    Parameters
+    ----------
+    starts : ndarray of int, shape (M, 2)
+        Sensor cell of each particle.
+    ends : ndarray of int, shape (M, B, 2)
+        Endpoint cells.
+
+    Returns
+    -------
+    free : ndarray of int64, shape (F, 3)
+        ``(particle, row, col)`` of every crossed cell (endpoint excluded).
+    hit : ndarray of int64, shape (M·B, 3)
+        ``(particle, row, col)`` of every endpoint.
+    """
+    s = np.asarray(starts, dtype=np.int64)
+    e = np.asarray(ends, dtype=np.int64)
+    if s.ndim != 2 or s.shape[1] != 2 or e.ndim != 3 or e.shape[0] != s.shape[0] or e.shape[2] != 2:
+        raise ValueError(f"ray_cells_batch: starts must be (M, 2) and ends (M, B, 2), got {s.shape} and {e.shape}")
+    m, b = e.shape[:2]
+    particle = np.repeat(np.arange(m), b)
+    start = np.repeat(s, b, axis=0)  # (M·B, 2)
+    delta = e.reshape(-1, 2) - start
+    n = np.abs(delta).max(axis=1)
     total = int(n.sum())
-    # one entry per free cell: beam k contributes i = 0 … n_k − 1
     i = np.arange(total) - np.repeat(np.cumsum(n) - n, n)
     nk = np.repeat(n, n)
-    free = np.empty((total, 2), dtype=np.int64)
-    for axis in (0, 1):  # rows, then columns (two axes, not a loop over beams)
+    free = np.empty((total, 3), dtype=np.int64)
+    free[:, 0] = np.repeat(particle, n)
+    for axis in (0, 1):  # rows, then columns
         d = delta[:, axis]
-        twice_abs = np.repeat(2 * np.abs(d), n)
-        free[:, axis] = s[axis] + np.repeat(np.sign(d), n) * ((i * twice_abs + nk - 1) // (2 * nk))
-    return free, e.copy()
+        free[:, axis + 1] = np.repeat(start[:, axis], n) + np.repeat(np.sign(d), n) * (
+            (i * np.repeat(2 * np.abs(d), n) + nk - 1) // (2 * nk)
+        )
+    hit = np.column_stack([particle, e.reshape(-1, 2)])
+    return free, hit
+
+
+def _flat_index(cells: np.ndarray, h: int, w: int) -> np.ndarray:
+    """Flat indices into (M, H, W) of the ``(particle, row, col)`` cells inside the grid."""
+    c = cells[(cells[:, 1] >= 0) & (cells[:, 1] < h) & (cells[:, 2] >= 0) & (cells[:, 2] < w)]
+    return (c[:, 0] * h + c[:, 1]) * w + c[:, 2]
+
+
+def update_maps(maps: np.ndarray, free: np.ndarray, hit: np.ndarray, l_occ: float, l_free: float, l_max: float) -> None:
+    """Log-odds update of several maps in place (the rule of :meth:`OccupancyGrid.update`, per map).
+
+    In each map, a cell crossed by at least one beam gets ``l_free`` once, a
+    cell holding an endpoint gets ``l_occ`` once (the endpoint wins), and the
+    result is clipped to ``[−l_max, l_max]``; cells outside the grid are ignored.
+
+    Parameters
+    ----------
+    maps : ndarray, shape (M, H, W)
+        Modified in place.
+    free, hit : ndarray of int, shape (·, 3)
+        ``(particle, row, col)`` from :func:`ray_cells_batch`.
+    """
+    _, h, w = maps.shape
+    lo = maps.reshape(-1)  # a view: writes go to the maps
+    f, k = _flat_index(free, h, w), _flat_index(hit, h, w)
+    new_free = np.clip(lo[f] + l_free, -l_max, l_max)
+    new_hit = np.clip(lo[k] + l_occ, -l_max, l_max)
+    lo[f] = new_free
+    lo[k] = new_hit
 
 
 # --------------------------------------------------------------------------- scans
@@ -499,7 +546,7 @@ def scan_endpoints(pose, ranges, angles, sensor_offset=(0.0, 0.0)) -> np.ndarray
     ndarray, shape (..., B, 2)
         ``(B, 2)`` for one pose, ``(M, B, 2)`` for ``M``.
     """
-    pose = _finite("pose", pose, (3,), "scan_endpoints")
+    pose = finite_array("pose", pose, "scan_endpoints", (3,))
     r = np.asarray(ranges, dtype=float)
     a = np.asarray(angles, dtype=float)
     if r.ndim != 1 or a.shape != r.shape:
@@ -516,7 +563,7 @@ def scan_endpoints(pose, ranges, angles, sensor_offset=(0.0, 0.0)) -> np.ndarray
     if not np.isfinite(a).all():
         k = int(np.argwhere(~np.isfinite(a))[0, 0])
         raise ValueError(f"scan_endpoints: angles[{k}] = {a[k]} is not finite")
-    off = _finite("sensor_offset", sensor_offset, (2,), "scan_endpoints")
+    off = finite_array("sensor_offset", sensor_offset, "scan_endpoints", (2,))
     sensor = transform_points(pose, off)  # (..., 2)
     phi = pose[..., 2, None] + a  # (..., B)
     return np.stack([sensor[..., 0, None] + r * np.cos(phi), sensor[..., 1, None] + r * np.sin(phi)], axis=-1)
@@ -550,7 +597,7 @@ def map_correlation(grid: OccupancyGrid, endpoints, values=None, *, threshold: f
     """
     if not isinstance(grid, OccupancyGrid):
         raise ValueError(f"map_correlation: grid must be an OccupancyGrid, got {type(grid).__name__}")
-    y = _finite("endpoints", endpoints, (2,), "map_correlation")
+    y = finite_array("endpoints", endpoints, "map_correlation", (2,))
     if y.ndim < 2:
         raise ValueError(f"map_correlation: endpoints must have shape (..., B, 2), got {y.shape}")
     if values is None:
@@ -560,8 +607,21 @@ def map_correlation(grid: OccupancyGrid, endpoints, values=None, *, threshold: f
         if v.shape != grid.shape or not np.isfinite(v).all():
             raise ValueError(f"map_correlation: values must be a finite array of shape {grid.shape}, got {v.shape}")
     cells = grid.world_to_cell(y)
-    ok = grid.inside(cells)
-    h, w = grid.shape
-    rows = np.clip(cells[..., 0], 0, h - 1)
-    cols = np.clip(cells[..., 1], 0, w - 1)
-    return np.where(ok, v[rows, cols], 0.0).sum(axis=-1)
+    return cell_values(v, cells[..., 0], cells[..., 1]).sum(axis=-1)
+
+
+def cell_values(values, rows, cols, outside=0.0) -> np.ndarray:
+    """The map's value at each cell ``(rows, cols)``, ``outside`` for cells off the grid.
+
+    ``values`` (H, W) is one map; (M, H, W) one map per particle, and then the
+    leading axis of ``rows`` and ``cols`` (M, ...) is the particle's. The
+    gather behind both map correlations (:func:`map_correlation`,
+    :func:`fastslam_edu.grid.gridslam.correlation`).
+    """
+    v = np.asarray(values)
+    h, w = v.shape[-2:]
+    rows, cols = np.asarray(rows), np.asarray(cols)
+    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    r, c = np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)
+    got = v[r, c] if v.ndim == 2 else v[np.arange(v.shape[0]).reshape((-1,) + (1,) * (r.ndim - 1)), r, c]
+    return np.where(inside, got, outside)

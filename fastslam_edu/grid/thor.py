@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fastslam_edu.core.checks import finite_array
 from fastslam_edu.datasets.laser import LaserLog, ThorLidar
 
 __all__ = [
@@ -86,20 +87,8 @@ FLOOR_Z = 0.1
 # --------------------------------------------------------------------------- checks
 
 
-def _finite(name: str, a, caller: str) -> np.ndarray:
-    """``a`` as a float array with only finite values, else a ValueError naming the first bad entry."""
-    try:
-        a = np.asarray(a, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{caller}: {name} must be numeric, got {a!r}") from None
-    if not np.isfinite(a).all():
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
-        raise ValueError(f"{caller}: {name} contains a non-finite value ({float(a[bad])}) at index {bad}")
-    return a
-
-
 def _pose(pose, caller: str) -> np.ndarray:
-    p = _finite("pose", pose, caller)
+    p = finite_array("pose", pose, caller)
     if p.ndim == 0 or p.shape[-1] != 3:
         raise ValueError(f"{caller}: pose must have shape (..., 3) = (x, y, yaw), got shape {p.shape}")
     return p
@@ -114,7 +103,7 @@ def rot_z(a) -> np.ndarray:
     ``R_z(a) = [[cos a, −sin a, 0], [sin a, cos a, 0], [0, 0, 1]]``: turns x
     towards y (to the left).
     """
-    a = _finite("a", a, "rot_z")
+    a = finite_array("a", a, "rot_z")
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
     return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
@@ -126,7 +115,7 @@ def rot_y(a) -> np.ndarray:
     ``R_y(a) = [[cos a, 0, sin a], [0, 1, 0], [−sin a, 0, cos a]]``: turns x
     towards −z, so a positive pitch looks **down**.
     """
-    a = _finite("a", a, "rot_y")
+    a = finite_array("a", a, "rot_y")
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
     return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
@@ -142,8 +131,8 @@ def homogeneous(R, t) -> np.ndarray:
     t : array_like, shape (..., 3)
         Translation [m]; leading dimensions broadcast with those of ``R``.
     """
-    R = _finite("R", R, "homogeneous")
-    t = _finite("t", t, "homogeneous")
+    R = finite_array("R", R, "homogeneous")
+    t = finite_array("t", t, "homogeneous")
     if R.shape[-2:] != (3, 3) or t.ndim == 0 or t.shape[-1] != 3:
         raise ValueError(f"homogeneous: R must be (..., 3, 3) and t (..., 3), got {R.shape} and {t.shape}")
     lead = np.broadcast_shapes(R.shape[:-2], t.shape[:-1])
@@ -164,8 +153,8 @@ def lidar_to_body(neck, head) -> np.ndarray:
     head : array_like, shape (...)
         Head pitch ``φ_h`` [rad] (positive: looks down).
     """
-    neck = _finite("neck", neck, "lidar_to_body")
-    head = _finite("head", head, "lidar_to_body")
+    neck = finite_array("neck", neck, "lidar_to_body")
+    head = finite_array("head", head, "lidar_to_body")
     R = rot_z(neck) @ rot_y(head)
     return homogeneous(R, np.array([0.0, 0.0, LIDAR_ABOVE_HEAD]))
 
@@ -204,8 +193,8 @@ def beam_points_lidar(ranges, angles) -> np.ndarray:
     angles : array_like, shape (B,)
         Beam angles ``α`` [rad], 0 ahead, positive to the left.
     """
-    r = _finite("ranges", ranges, "beam_points_lidar")
-    a = _finite("angles", angles, "beam_points_lidar")
+    r = finite_array("ranges", ranges, "beam_points_lidar")
+    a = finite_array("angles", angles, "beam_points_lidar")
     if a.ndim != 1 or r.ndim == 0 or r.shape[-1] != a.shape[0]:
         raise ValueError(
             f"beam_points_lidar: angles must be (B,) and ranges (..., B), got {a.shape} and {r.shape}"
@@ -232,7 +221,7 @@ def beam_directions_world(angles, neck, head, pose) -> tuple[np.ndarray, np.ndar
         Unit vectors.
     """
     T = lidar_to_world(neck, head, pose)
-    a = _finite("angles", angles, "beam_directions_world")
+    a = finite_array("angles", angles, "beam_directions_world")
     if a.ndim != 1:
         raise ValueError(f"beam_directions_world: angles must be (B,), got {a.shape}")
     u = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)  # (B, 3)
@@ -370,8 +359,8 @@ def nearest_sample(t_query, t_samples) -> np.ndarray:
     -------
     ndarray of int64, shape (N,)
     """
-    tq = _finite("t_query", t_query, "nearest_sample")
-    ts = _finite("t_samples", t_samples, "nearest_sample")
+    tq = finite_array("t_query", t_query, "nearest_sample")
+    ts = finite_array("t_samples", t_samples, "nearest_sample")
     if ts.ndim != 1 or ts.size == 0:
         raise ValueError(f"nearest_sample: t_samples must be a non-empty 1-D array, got shape {ts.shape}")
     if ts.size > 1 and (np.diff(ts) < 0).any():
@@ -406,14 +395,14 @@ def joints_at(t_scans, t_joints, neck, head, *, max_gap: float | None = None) ->
     -------
     neck_k, head_k : ndarray, shape (N,) each
     """
-    tj = _finite("t_joints", t_joints, "joints_at")
-    neck = _finite("neck", neck, "joints_at")
-    head = _finite("head", head, "joints_at")
+    tj = finite_array("t_joints", t_joints, "joints_at")
+    neck = finite_array("neck", neck, "joints_at")
+    head = finite_array("head", head, "joints_at")
     if tj.ndim != 1 or neck.shape != tj.shape or head.shape != tj.shape:
         raise ValueError(
             f"joints_at: t_joints, neck and head must be 1-D of equal length, got {tj.shape}, {neck.shape}, {head.shape}"
         )
-    ts = _finite("t_scans", t_scans, "joints_at")
+    ts = finite_array("t_scans", t_scans, "joints_at")
     j = nearest_sample(ts, tj)
     if max_gap is not None:
         gap = np.abs(tj[j] - ts)

@@ -51,12 +51,12 @@ from scipy.stats import chi2
 
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.landmark.fastslam_step import Particles, Sightings, sample_segment, standard_normals, update_particles
+from fastslam_edu.landmark.fastslam_step import (Particles, Sightings, normalise_weights, sample_segment,
+                                                standard_normals, update_particles, weighted_mean_pose)
 from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.core.params import Params
 from fastslam_edu.landmark.proposal import motion_prediction, sample_improved_poses, segment_motion
 from fastslam_edu.core.resampling import get_resampler
-from fastslam_edu.core.weights import weights_from_log
 
 MODES = ("slam", "localize", "map")
 PROPOSALS = ("motion", "fastslam2")
@@ -238,8 +238,10 @@ class ParticleSet:
 
     @property
     def weights(self) -> np.ndarray:
-        """Normalised weights :math:`w^{[m]}`, shape (M,)."""
-        return weights_from_log(self.logw)
+        """Normalised weights :math:`w^{[m]}`, shape (M,) (all log weights :math:`-\\infty`: uniform)."""
+        w = np.empty(len(self.logw))
+        normalise_weights(np.asarray(self.logw, dtype=float), w)
+        return w
 
     def with_known_map(self, landmarks) -> "ParticleSet":
         """Every particle holding the known landmarks ``(K, 2)`` (localisation), Σ = 10⁻⁶ I."""
@@ -781,7 +783,7 @@ class FilterRun:
         self.ess_t.append(t)
         self.ess.append(n_eff)
         self.w = np.full(len(self.particles), 1.0 / len(self.particles)) if did else self.particles.weights
-        self.pose_mean[e] = combined_pose(self.particles.poses, self.w)
+        weighted_mean_pose(self.particles.poses, self.w, self.pose_mean[e])
         self.pose_best[e] = self.particles.poses[int(np.argmax(self.w))]
 
     def result(self, filter_seconds: float) -> FastSLAMResult:

@@ -236,3 +236,43 @@ def update_particles(P, S, gate_chi2, update_map, explained):
                 update_particle(P, m, S, i, chi2, update_map)
             elif update_map and P.count[m, j] == 1:  # rejected, but one of two sightings is wrong:
                 ekf_initialise(P.poses[m], S.z[i], S.R[i], P.mu[m, j], P.sigma[m, j])  # start again
+
+
+# ---------------------------------------------------------------- step 4: weights and the combined pose
+
+
+@njit(cache=True)
+def normalise_weights(logw, w):
+    """:math:`w^{[m]} = \\exp(\\ell^{[m]} - \\max \\ell) / \\sum`, into ``w`` (M,); returns :math:`N_\\text{eff} = 1/\\sum_m (w^{[m]})^2`.
+
+    All log weights :math:`-\\infty` (every particle ruled out): uniform weights,
+    as :func:`fastslam_edu.core.weights.weights_from_log` does; NaN or :math:`+\\infty`: ValueError.
+    """
+    top = np.max(logw)
+    if math.isnan(top) or top == math.inf:
+        raise ValueError("log weights contain NaN or +inf: a likelihood was not computed right")
+    if top == -math.inf:
+        w[:] = 1.0 / w.shape[0]
+        return float(w.shape[0])
+    total = 0.0
+    for m in range(w.shape[0]):
+        w[m] = math.exp(logw[m] - top)
+        total += w[m]
+    squares = 0.0
+    for m in range(w.shape[0]):
+        w[m] /= total
+        squares += w[m] * w[m]
+    return 1.0 / squares
+
+
+@njit(cache=True)
+def weighted_mean_pose(poses, w, out):
+    """:math:`\\bar x = \\sum_m w^{[m]} x^{[m]}` into ``out`` (3,), θ the circular mean (wrapped)."""
+    x = y = s = c = 0.0
+    for m in range(poses.shape[0]):
+        x += w[m] * poses[m, 0]
+        y += w[m] * poses[m, 1]
+        s += w[m] * math.sin(poses[m, 2])
+        c += w[m] * math.cos(poses[m, 2])
+    out[0], out[1], out[2] = x, y, wrap_one(math.atan2(s, c))
+

@@ -124,21 +124,6 @@ def motion_prediction(x0, delta, P_rel) -> tuple[np.ndarray, np.ndarray]:
     return xbar, T @ P_rel @ _transpose(T)
 
 
-def _predict(x, m):
-    """ẑ = h(x, m), H = ∂h/∂m and G = ∂h/∂x for (n, 3) poses and (n, 2) landmarks (unchecked)."""
-    d = m - x[:, :2]
-    q = np.einsum("ni,ni->n", d, d)
-    r = np.sqrt(q)
-    z_hat = np.column_stack([r, wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - x[:, 2])])
-    H = np.empty((len(x), 2, 2))
-    H[:, 0, 0], H[:, 0, 1] = d[:, 0] / r, d[:, 1] / r
-    H[:, 1, 0], H[:, 1, 1] = -d[:, 1] / q, d[:, 0] / q
-    G = np.zeros((len(x), 2, 3))
-    G[:, :, :2] = -H
-    G[:, 1, 2] = -1.0
-    return z_hat, H, G
-
-
 def _cholesky2(Q):
     """Lower-triangular ``L`` with ``L Lᵀ = Q`` for each 2×2 covariance in (n, 2, 2)."""
     L = np.zeros_like(Q)
@@ -183,7 +168,7 @@ def improved_pose(x_hat, x_bar, P, mu, Sigma, z, R, eps):
     d2 : ndarray (n,)
         :math:`\\nu^\\top S^{-1} \\nu`, for the gate.
     """
-    z_bar, H, G = _predict(x_bar, mu)
+    z_bar, H, G = range_bearing(x_bar, mu), jacobian_landmark(x_bar, mu), jacobian_pose(x_bar, mu)
     Q = H @ Sigma @ _transpose(H) + R
     S = G @ P @ _transpose(G) + Q
     det_S = _det2(S)
@@ -192,7 +177,7 @@ def improved_pose(x_hat, x_bar, P, mu, Sigma, z, R, eps):
     nu_bar = _innovation(z, z_bar)
     d2 = np.einsum("ni,nij,nj->n", nu_bar, S_inv, nu_bar)
     loglik = -0.5 * d2 - np.log(2.0 * np.pi) - 0.5 * np.log(det_S)
-    z_hat = _predict(x_hat, mu)[0]
+    z_hat = range_bearing(x_hat, mu)
     perturbation = np.einsum("nij,nj->ni", _cholesky2(Q), eps)
     x = x_hat + np.einsum("nij,nj->ni", K, _innovation(z + perturbation, z_hat))
     x[:, 2] = wrap_angle(x[:, 2])
