@@ -237,8 +237,8 @@ def _run_sampler(ps, z, k, *, gate=27.6, escape=False, min_count=2):
     x_bar, P = _prediction(ps)
     z = np.atleast_2d(z)
     n = len(z)
-    return sample_improved_poses(ps, z, np.asarray(k), np.tile(R, (n, 1, 1)), x_bar, P, gate_chi2=gate,
-                                 escape=np.full(n, escape), rng=np.random.default_rng(0),
+    sightings = (z, np.asarray(k), np.tile(R, (n, 1, 1)), np.full(n, escape))
+    return sample_improved_poses(ps, sightings, x_bar, P, gate_chi2=gate, rng=np.random.default_rng(0),
                                  min_count=min_count)
 
 

@@ -614,6 +614,31 @@ def _row(value, n: int | None, what: str, where: str) -> np.ndarray:
     return a
 
 
+def _thor_struct_fields(cells, i: int, where: str) -> tuple[int, dict]:
+    """The variant (1 or 2) of THOR scan struct ``i`` and its fields by name (by position for unnamed variant 1)."""
+    try:
+        s = cells[0][i][0][0]
+        names = s.dtype.names
+    except (IndexError, TypeError, AttributeError):
+        raise ValueError(f"{where}: not a 1 × 1 struct") from None
+    if names is None:
+        raise ValueError(f"{where}: not a struct")
+    if set(names) == {"t", "scan", "delta_pose"}:
+        return 2, {k: s[k] for k in names}
+    if set(names) >= set(_THOR_V1_FIELDS):
+        return 1, {k: s[k] for k in names}
+    if len(names) in (5, 6):  # variant 1 with other field names: by position from the end
+        k = len(names)
+        get = {"t": s[0], "pose": s[k - 4], "res": s[k - 3], "rpy": s[k - 2], "scan": s[k - 1]}
+        if k == 6:
+            get["delta_pose"] = s[1]
+        return 1, get
+    raise ValueError(
+        f"{where}: unknown struct fields {names} (expected t, [delta_pose,] pose, res, rpy, scan "
+        "or t, scan, delta_pose)"
+    )
+
+
 def read_thor_lidar(path) -> ThorLidar:
     """Read a THOR LiDAR ``.mat`` file (either variant of the THOR README).
 
@@ -644,30 +669,7 @@ def read_thor_lidar(path) -> ThorLidar:
     variant = None
     for i in range(cells.shape[1]):
         where = f"{path}: lidar{{{i + 1}}}"
-        try:
-            s = cells[0][i][0][0]
-            names = s.dtype.names
-        except (IndexError, TypeError, AttributeError):
-            raise ValueError(f"{where}: not a 1 × 1 struct") from None
-        if names is None:
-            raise ValueError(f"{where}: not a struct")
-        if set(names) == {"t", "scan", "delta_pose"}:
-            v = 2
-            get = {k: s[k] for k in names}
-        elif set(names) >= set(_THOR_V1_FIELDS):
-            v = 1
-            get = {k: s[k] for k in names}
-        elif len(names) in (5, 6):  # variant 1 with other field names: by position from the end
-            v = 1
-            k = len(names)
-            get = {"t": s[0], "pose": s[k - 4], "res": s[k - 3], "rpy": s[k - 2], "scan": s[k - 1]}
-            if k == 6:
-                get["delta_pose"] = s[1]
-        else:
-            raise ValueError(
-                f"{where}: unknown struct fields {names} (expected t, [delta_pose,] pose, res, rpy, scan "
-                "or t, scan, delta_pose)"
-            )
+        v, get = _thor_struct_fields(cells, i, where)
         if variant is None:
             variant = v
         elif v != variant:

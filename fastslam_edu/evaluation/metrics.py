@@ -259,6 +259,19 @@ def _stats(e: np.ndarray) -> tuple[float, float, float]:
     return float(e.mean()), float(np.sqrt(np.mean(e * e))), float(e.max())
 
 
+def _estimated_path(t_est, poses_est) -> tuple[np.ndarray, np.ndarray]:
+    """``t_est`` (n,) and ``poses_est`` (n, 3) or (n, 2) as float arrays, n ≥ 1, poses finite."""
+    te = _as_float_array(t_est, "t_est")
+    pe = _as_float_array(poses_est, "poses_est")
+    if pe.ndim != 2 or pe.shape[1] not in (2, 3) or te.shape != (pe.shape[0],) or te.size == 0:
+        raise ValueError(
+            f"t_est must have shape (n,) and poses_est shape (n, 3) or (n, 2) with n ≥ 1, got {te.shape} and {pe.shape}"
+        )
+    if not np.all(np.isfinite(pe)):
+        raise ValueError(f"poses_est contains {int(np.count_nonzero(~np.isfinite(pe)))} NaN or inf value(s)")
+    return te, pe
+
+
 def trajectory_errors(
     t_est,
     poses_est,
@@ -304,14 +317,7 @@ def trajectory_errors(
         heading column); ``alignment``: None, or ``{"R", "t", "angle"}`` when
         ``align=True``.
     """
-    te = _as_float_array(t_est, "t_est")
-    pe = _as_float_array(poses_est, "poses_est")
-    if pe.ndim != 2 or pe.shape[1] not in (2, 3) or te.shape != (pe.shape[0],) or te.size == 0:
-        raise ValueError(
-            f"t_est must have shape (n,) and poses_est shape (n, 3) or (n, 2) with n ≥ 1, got {te.shape} and {pe.shape}"
-        )
-    if not np.all(np.isfinite(pe)):
-        raise ValueError(f"poses_est contains {int(np.count_nonzero(~np.isfinite(pe)))} NaN or inf value(s)")
+    te, pe = _estimated_path(t_est, poses_est)
     truth = interpolate_poses(te, t_gt, poses_gt, tolerance=tolerance)
     xy = pe[:, :2]
     heading = pe[:, 2] if pe.shape[1] == 3 else None

@@ -613,10 +613,9 @@ class ImprovedProposal(MotionProposal):
     def weigh(self, run, s, e, sightings):
         if run.x_start is None:  # the poses were moved by a hook (a kidnap): no motion to condition on
             return None
-        z, lm, R, escape = sightings
         u, dt = run.u[s : e + 1], run.dt[s : e + 1]
         x_bar, P = motion_prediction(run.x_start, *segment_motion(u, dt, run.params.motion_noise))
-        return sample_improved_poses(run.particles, z, lm, R, x_bar, P, gate_chi2=run.gate.chi2, escape=escape,
+        return sample_improved_poses(run.particles, sightings, x_bar, P, gate_chi2=run.gate.chi2,
                                      rng=run.rng, min_count=2 if run.update_map else 1)
 
 

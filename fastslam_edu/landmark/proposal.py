@@ -207,8 +207,10 @@ def improved_pose_one(x_bar, P, mu, Sigma, z, R):
     return mu_x, Sigma_x, float(log_w)
 
 
-def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, rng, min_count: int = 2) -> np.ndarray:
-    """Move the particles' poses by the proposal, for the sightings ``z`` (n, 2) of landmarks ``k`` (n,).
+def sample_improved_poses(particles, sightings, x_bar, P, *, gate_chi2, rng, min_count: int = 2) -> np.ndarray:
+    """Move the particles' poses by the proposal, for the ``sightings`` ``(z, k, R, escape)`` of one instant.
+
+    ``z`` (n, 2) of landmarks ``k`` (n,), with noise ``R`` (n, 2, 2); ``escape`` (n,) bool: those applied without the gate.
 
     Used for each sighting of a landmark that the particle has used at least
     ``min_count`` times (default 2: a landmark read once is only as good as that
@@ -216,7 +218,7 @@ def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, rn
     the gate on and no ``escape``, only where :math:`d^2 = \\nu^\\top S^{-1} \\nu` is within
     ``gate_chi2``: an outlier must not drag the pose. A landmark read twice at one
     instant is used once (FastSLAM 1.0's update takes the second reading after
-    the first; its weight stays 1.0's). ``R`` (n, 2, 2), ``escape`` (n,) bool.
+    the first; its weight stays 1.0's).
 
     Changes ``particles.poses`` and returns the weights, (M, n): :math:`\\log \\mathcal N(z; \\hat z(\\bar x), S)`
     for each particle moved by sighting ``j``, NaN where the proposal was not used
@@ -225,6 +227,7 @@ def sample_improved_poses(particles, z, k, R, x_bar, P, *, gate_chi2, escape, rn
     :func:`fastslam_edu.landmark.fastslam.update_with_measurements`), with the gate and the
     exponents :math:`\\beta` as for its own.
     """
+    z, k, R, escape = sightings
     loglik = np.full((len(particles), len(z)), np.nan)
     used = set()
     x_bar, P = x_bar.copy(), P.copy()
