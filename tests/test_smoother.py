@@ -16,6 +16,7 @@ from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.core.se2 import relative
 from fastslam_edu.landmark.smoother import (
     PRIOR_STD,
+    SolverSettings,
     block_tridiagonal_inverse_diagonal,
     dead_reckoning,
     keyframe_steps,
@@ -180,7 +181,7 @@ def test_smoother_beats_dead_reckoning_and_is_consistent():
         err = result.landmarks[seen] - truth[seen]
         nees.append(np.einsum("ni,nij,nj->n", err, np.linalg.inv(result.landmarks_cov[seen]), err).mean())
         e_sm.append(np.linalg.norm(err, axis=1).mean())
-        dr = smooth(stream, params, max_iterations=0)  # zero iterations: the start, dead reckoning
+        dr = smooth(stream, params, solver=SolverSettings(max_iterations=0))  # zero iterations: the start, dead reckoning
         e_dr.append(np.linalg.norm(dr.landmarks[seen] - truth[seen], axis=1).mean())
         assert np.nanmean(landmark_errors_aligned(result.landmarks, truth, seen)) < 0.03
         assert result.measurements_rejected == 0  # no outliers simulated: the gate (d² > 27.6) keeps all
@@ -355,7 +356,7 @@ def test_the_huber_round_alone_resists_outliers():
     than plain least squares (no gate, no Huber)."""
     data, log, stream = simulate(11, duration=60.0, outlier_prob=0.05)
     truth = data.landmark_positions
-    huber = smooth(stream, _params(), max_rounds=1)
+    huber = smooth(stream, _params(), solver=SolverSettings(max_rounds=1))
     plain = smooth(stream, _params(gate_chi2=None))
     assert huber.rounds == 1 and huber.measurements_rejected == 0
     e_huber = np.nanmean(landmark_errors_aligned(huber.landmarks, truth, huber.observed))

@@ -52,6 +52,7 @@ from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions, stream_commands
 from fastslam_edu.core.measurement import innovation, jacobian_landmark, jacobian_pose, landmark_from_measurement, range_bearing
 from fastslam_edu.core.motion import MotionNoise, path_from_increments, segment_increments
+from fastslam_edu.core.params import Params
 from fastslam_edu.core.se2 import relative
 
 #: Standard deviation of the prior on the first keyframe (the filter starts every particle there exactly).
@@ -425,6 +426,15 @@ def _laplace(problem: _Problem, v, active, with_poses=True):
     return np.sqrt(np.maximum(var, 0.0)).reshape(N, 3), cov_lm
 
 
+@dataclass(frozen=True, eq=False)
+class SolverSettings(Params):
+    """When the smoother stops: Levenberg–Marquardt iterations per round, gating rounds, relative cost change."""
+
+    max_iterations: int = 100
+    max_rounds: int = 10
+    tol: float = 1e-10
+
+
 def smooth(
     stream: EventStream,
     params: FastSLAMParams | None = None,
@@ -433,10 +443,8 @@ def smooth(
     x0=None,
     x0_std=PRIOR_STD,
     max_gap_s: float = 1.0,
-    max_iterations: int = 100,
-    max_rounds: int = 10,
-    tol: float = 1e-10,
     pose_std: bool = False,
+    solver: SolverSettings = SolverSettings(),
 ) -> SmootherResult:
     """The least-squares path and map of a whole log under ``params``' model (see the module docstring).
 
@@ -468,69 +476,26 @@ def smooth(
     pose_std : bool
         Compute the poses' standard deviations (one backward pass over the keyframes, :func:`_laplace`;
         the landmarks' covariances are always computed).
+    solver : SolverSettings
+        When Levenberg–Marquardt and the gating rounds stop.
     """
     started = time.perf_counter()
     params = FastSLAMParams() if params is None else params
     x0 = stream.x0 if x0 is None else np.asarray(x0, dtype=float)
     if x0 is None:
         raise ValueError("smooth: the stream has no initial pose (x0 is None): pass x0=(x, y, theta)")
-    x0 = np.asarray(x0, dtype=float).reshape(3)
     if len(stream) < 2:
         raise ValueError(f"smooth: the stream has {len(stream)} step(s); at least 2 are needed")
     if initial is not None and len(initial.t) != len(stream):
         raise ValueError(
             f"smooth: initial has {len(initial.t)} steps but the stream {len(stream)}: run the filter on the same stream"
         )
+    x0 = np.asarray(x0, dtype=float).reshape(3)
     keys = keyframe_steps(stream, max_gap_s)
     path = dead_reckoning(stream, x0, params.odometry_scale)
-    delta, cov = odometry_factors(stream, path, keys, params.motion_noise)
-
-    # the sightings: keyframe, landmark column, whitening (β = 0 ones carry nothing)
-    step_of = np.repeat(np.arange(len(stream)), np.diff(stream.offsets))
-    beta = sighting_weights(stream, params.measurement_correlation_s)
-    use = beta > 0
-    seen = np.unique(stream.landmark[use])
-    column = np.full(stream.n_landmarks, -1)
-    column[seen] = np.arange(len(seen))
-    z = stream.z[use]
-    Wg = whitening(params.measurement_covariance(z))
-    problem = _Problem(
-        n_poses=len(keys), x0=x0, W0=np.diag(1.0 / np.asarray(x0_std, dtype=float)), delta=delta, Wo=whitening(cov), z=z,
-        pose_of=np.searchsorted(keys, step_of[use]), col_of=column[stream.landmark[use]],
-        Wm=np.sqrt(beta[use])[:, None, None] * Wg, Wg=Wg,
-    )
-
-    # the start: dead reckoning or the filter's estimate; landmarks from their first sighting
-    if initial is not None:
-        poses = np.array(initial.pose_mean[keys], dtype=float)
-        poses[:, 2] = path[keys, 2] + wrap_angle(poses[:, 2] - path[keys, 2])
-    else:
-        poses = path[keys].copy()
-    lms = np.empty((len(seen), 2))
-    first = np.unique(problem.col_of, return_index=True)[1]
-    lms[:] = landmark_from_measurement(poses[problem.pose_of[first]], z[first])
-    if initial is not None:
-        from_filter = initial.observed[seen] & np.all(np.isfinite(initial.landmarks_mean[seen]), axis=1)
-        lms[from_filter] = initial.landmarks_mean[seen][from_filter]
-    v = np.concatenate([poses.ravel(), lms.ravel()])
-
-    # round 1: Huber at the gate's radius; then the gate itself until the rejected set settles
-    gate = params.gate_chi2
-    active = np.ones(len(z), dtype=bool)
-    problem.anchor = lms.copy()
-    v, iterations, cost = _levenberg_marquardt(problem, v, active, huber=None if gate is None else np.sqrt(gate),
-                                               max_iterations=max_iterations, tol=tol)
-    rounds = 1
-    while gate is not None and rounds < max_rounds:
-        new_active = problem.gate_d2(v) <= gate
-        if rounds > 1 and np.array_equal(new_active, active):
-            break
-        active = new_active
-        problem.anchor = problem.split(v)[1].copy()
-        v, it, cost = _levenberg_marquardt(problem, v, active, huber=None, max_iterations=max_iterations, tol=tol)
-        iterations += it
-        rounds += 1
-
+    problem, seen, use = build_problem(stream, params, keys, path, x0, x0_std)
+    v = starting_point(problem, path, keys, seen, initial)
+    v, active, iterations, rounds, cost = solve_with_gate(problem, v, params.gate_chi2, solver)
     poses, lms = problem.split(v)
     std, cov_lm = _laplace(problem, v, active, with_poses=pose_std)
     K = stream.n_landmarks
@@ -540,10 +505,73 @@ def smooth(
     landmarks[seen[kept]], landmarks_cov[seen[kept]] = lms[kept], cov_lm[kept]
     observed = np.zeros(K, dtype=bool)
     observed[seen[kept]] = True
-    poses = wrap_pose_error(poses)
     return SmootherResult(
-        t=stream.t[keys], steps=keys, poses=poses, pose_std=std, landmarks=landmarks, landmarks_cov=landmarks_cov,
-        observed=observed, landmark_subjects=stream.landmark_subjects, iterations=iterations, rounds=rounds,
-        cost=float(cost), measurements_used=int(active.sum()), measurements_rejected=int((~active).sum()),
-        measurements_zero_weight=int((~use).sum()), seconds=time.perf_counter() - started,
+        t=stream.t[keys], steps=keys, poses=wrap_pose_error(poses), pose_std=std, landmarks=landmarks,
+        landmarks_cov=landmarks_cov, observed=observed, landmark_subjects=stream.landmark_subjects,
+        iterations=iterations, rounds=rounds, cost=float(cost), measurements_used=int(active.sum()),
+        measurements_rejected=int((~active).sum()), measurements_zero_weight=int((~use).sum()),
+        seconds=time.perf_counter() - started,
     )
+
+
+def build_problem(stream: EventStream, params: FastSLAMParams, keys, path, x0, x0_std):
+    """The least-squares problem over the keyframe poses ``keys`` and the landmarks seen.
+
+    Odometry factors between consecutive keyframes (:func:`odometry_factors`, linearised about the
+    dead-reckoned ``path``), a prior on the first pose (``x0``, standard deviations ``x0_std``), and one factor per sighting, whitened by
+    its :math:`R` and its tempering weight :math:`\\sqrt\\beta` (sightings with :math:`\\beta = 0` carry nothing).
+    Returns ``(problem, seen, use)``: the landmark indices with a column, and the sightings used.
+    """
+    delta, cov = odometry_factors(stream, path, keys, params.motion_noise)
+    step_of = np.repeat(np.arange(len(stream)), np.diff(stream.offsets))
+    beta = sighting_weights(stream, params.measurement_correlation_s)
+    use = beta > 0
+    seen = np.unique(stream.landmark[use])
+    column = np.full(stream.n_landmarks, -1)
+    column[seen] = np.arange(len(seen))
+    z = stream.z[use]
+    Wg = whitening(params.measurement_covariance(z))
+    problem = _Problem(
+        n_poses=len(keys), x0=x0, W0=np.diag(1.0 / np.asarray(x0_std, dtype=float)), delta=delta,
+        Wo=whitening(cov), z=z, pose_of=np.searchsorted(keys, step_of[use]), col_of=column[stream.landmark[use]],
+        Wm=np.sqrt(beta[use])[:, None, None] * Wg, Wg=Wg,
+    )
+    return problem, seen, use
+
+
+def starting_point(problem, path, keys, seen, initial: FastSLAMResult | None) -> np.ndarray:
+    """The start of the optimisation: the filter's estimate, or dead reckoning and landmarks from their first sighting."""
+    if initial is not None:
+        poses = np.array(initial.pose_mean[keys], dtype=float)
+        poses[:, 2] = path[keys, 2] + wrap_angle(poses[:, 2] - path[keys, 2])
+    else:
+        poses = path[keys].copy()
+    first = np.unique(problem.col_of, return_index=True)[1]
+    lms = landmark_from_measurement(poses[problem.pose_of[first]], problem.z[first])
+    if initial is not None:
+        from_filter = initial.observed[seen] & np.all(np.isfinite(initial.landmarks_mean[seen]), axis=1)
+        lms[from_filter] = initial.landmarks_mean[seen][from_filter]
+    return np.concatenate([poses.ravel(), lms.ravel()])
+
+
+def solve_with_gate(problem, v, gate: float | None, solver: SolverSettings):
+    """Round 1: Huber at the gate's radius; then the gate itself, until the rejected set settles.
+
+    Returns ``(v, active, iterations, rounds, cost)``.
+    """
+    active = np.ones(len(problem.z), dtype=bool)
+    problem.anchor = problem.split(v)[1].copy()
+    v, iterations, cost = _levenberg_marquardt(problem, v, active, huber=None if gate is None else np.sqrt(gate),
+                                               max_iterations=solver.max_iterations, tol=solver.tol)
+    rounds = 1
+    while gate is not None and rounds < solver.max_rounds:
+        new_active = problem.gate_d2(v) <= gate
+        if rounds > 1 and np.array_equal(new_active, active):
+            break
+        active = new_active
+        problem.anchor = problem.split(v)[1].copy()
+        v, it, cost = _levenberg_marquardt(problem, v, active, huber=None, max_iterations=solver.max_iterations,
+                                           tol=solver.tol)
+        iterations += it
+        rounds += 1
+    return v, active, iterations, rounds, cost
