@@ -312,8 +312,8 @@ def move(x, u, dt: float, noise: MotionNoise, eps) -> np.ndarray:
 
         x_t = propagate(x, u, Δt) + (σ_xy √Δt ε₁, σ_xy √Δt ε₂, σ_θ √Δt ε₃),   θ wrapped.
 
-    Taking ``eps`` as an argument lets a loop reference and the vectorised
-    filter consume the very same random numbers.
+    Taking ``eps`` as an argument lets this function, the loop reference of the tests and
+    the filter's compiled step consume the very same random numbers.
 
     Parameters
     ----------

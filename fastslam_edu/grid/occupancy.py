@@ -343,18 +343,10 @@ class OccupancyGrid:
         self._add(free, hit)
 
     def _add(self, free_cells: np.ndarray, hit_cells: np.ndarray) -> None:
-        """Log-odds update from cell lists (duplicates allowed): each cell once, hits win, clipped.
-
-        Both sets read the log-odds *before* the update; the hits are written
-        last, so a cell in both lists ends with ``l + l_occ``. (NumPy's
-        ``a[idx] = v`` with repeated indices writes the same value repeatedly,
-        so a cell crossed by many beams is still updated once.)
-        """
-        free = np.column_stack([np.zeros(len(free_cells), dtype=np.int64), free_cells])  # as map 0 of one
-        hit = np.column_stack([np.zeros(len(hit_cells), dtype=np.int64), hit_cells])
-        update_maps(self.log_odds[None], free, hit, self.l_occ, self.l_free, self.l_max)
+        """Log-odds update from cell lists (duplicates allowed): each cell once, hits win, clipped (:func:`_add_log_odds`)."""
         h, w = self.shape
-        free_flat, hit_flat = _flat_index(free, h, w), _flat_index(hit, h, w)
+        free_flat, hit_flat = _flat_index(free_cells, h, w), _flat_index(hit_cells, h, w)
+        _add_log_odds(self.log_odds.reshape(-1), free_flat, hit_flat, self.l_occ, self.l_free, self.l_max)
         seen = self.observed.reshape(-1)
         seen[free_flat] = True
         seen[hit_flat] = True
@@ -488,9 +480,22 @@ def ray_cells_batch(starts, ends) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _flat_index(cells: np.ndarray, h: int, w: int) -> np.ndarray:
-    """Flat indices into (M, H, W) of the ``(particle, row, col)`` cells inside the grid."""
-    c = cells[(cells[:, 1] >= 0) & (cells[:, 1] < h) & (cells[:, 2] >= 0) & (cells[:, 2] < w)]
-    return (c[:, 0] * h + c[:, 1]) * w + c[:, 2]
+    """Flat indices of the cells inside an H × W grid: ``(row, col)`` into (H, W), ``(particle, row, col)`` into (M, H, W)."""
+    c = cells[(cells[:, -2] >= 0) & (cells[:, -2] < h) & (cells[:, -1] >= 0) & (cells[:, -1] < w)]
+    flat = c[:, -2] * w + c[:, -1]
+    return flat + c[:, 0] * (h * w) if cells.shape[1] == 3 else flat
+
+
+def _add_log_odds(lo: np.ndarray, free: np.ndarray, hit: np.ndarray, l_occ: float, l_free: float, l_max: float) -> None:
+    """``l_free`` once to the flat cells ``free``, then ``l_occ`` once to ``hit`` (the endpoint wins), clipped; in place.
+
+    Both read the log-odds before the update (NumPy's ``a[idx] = v`` with repeated
+    indices writes the same value again, so a cell crossed by many beams changes once).
+    """
+    new_free = np.clip(lo[free] + l_free, -l_max, l_max)
+    new_hit = np.clip(lo[hit] + l_occ, -l_max, l_max)
+    lo[free] = new_free
+    lo[hit] = new_hit
 
 
 def update_maps(maps: np.ndarray, free: np.ndarray, hit: np.ndarray, l_occ: float, l_free: float, l_max: float) -> None:
@@ -508,12 +513,7 @@ def update_maps(maps: np.ndarray, free: np.ndarray, hit: np.ndarray, l_occ: floa
         ``(particle, row, col)`` from :func:`ray_cells_batch`.
     """
     _, h, w = maps.shape
-    lo = maps.reshape(-1)  # a view: writes go to the maps
-    f, k = _flat_index(free, h, w), _flat_index(hit, h, w)
-    new_free = np.clip(lo[f] + l_free, -l_max, l_max)
-    new_hit = np.clip(lo[k] + l_occ, -l_max, l_max)
-    lo[f] = new_free
-    lo[k] = new_hit
+    _add_log_odds(maps.reshape(-1), _flat_index(free, h, w), _flat_index(hit, h, w), l_occ, l_free, l_max)
 
 
 # --------------------------------------------------------------------------- scans

@@ -16,8 +16,8 @@ logw       (M,) array              :math:`\\log w^{[m]}`
   :math:`\\lceil \\log_2 K \\rceil + 1` nodes: :math:`O(M \\log K)` per measurement;
 * the EKF arithmetic itself is the array engine's: the few landmarks measured
   at an instant are read out of the trees (:func:`~fastslam_edu.landmark.tree.gather`),
-  updated by :func:`fastslam_edu.landmark.fastslam.update_with_measurements`, vectorised
-  over the M particles, and written back into new trees
+  updated by :func:`fastslam_edu.landmark.fastslam.update_with_measurements` (the compiled
+  per-particle step), and written back into new trees
   (:func:`~fastslam_edu.landmark.tree.set_each`).
 
 The filter consumes the random numbers in the same order as
