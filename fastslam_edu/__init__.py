@@ -7,7 +7,7 @@ core            the building blocks
     measurement     the range-bearing model h, its inverse and Jacobians
     ekf             one 2x2 EKF per landmark per particle (the compiled update, and the textbook one)
     weights         log importance weights, normalisation, effective sample size
-    resampling      multinomial (roulette), systematic, stratified and residual resampling
+    resampling      roulette (multinomial), systematic, stratified and residual resampling
     params          parameter sets: immutable, comparable, copied and serialised one way
 
 datasets        data in, data made (imports no evaluation code)

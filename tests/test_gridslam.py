@@ -302,7 +302,7 @@ def test_bad_input_is_rejected(world):
     with pytest.raises(ValueError, match="Generator"):
         run_grid_slam(world.log, GridSLAMParams(), 0)
     with pytest.raises(ValueError, match="systematic"):
-        run_grid_slam_loop(world.log, GridSLAMParams(resampler="multinomial"), np.random.default_rng(0))
+        run_grid_slam_loop(world.log, GridSLAMParams(resampler="roulette"), np.random.default_rng(0))
 
 
 def test_writeup_preset_is_the_writeup_rule():

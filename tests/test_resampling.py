@@ -25,7 +25,7 @@ from scipy.stats import chi2_contingency
 
 from fastslam_edu.core import resampling as rs
 
-SCHEMES = ["multinomial", "stratified", "systematic", "residual"]
+SCHEMES = ["roulette", "stratified", "systematic", "residual"]
 
 # A fixed non-uniform weight vector: some N w_i below 1, some integer, some above.
 W = np.array([0.02, 0.03, 0.05, 0.07, 0.08, 0.10, 0.12, 0.15, 0.18, 0.20])
@@ -99,7 +99,7 @@ def test_filterpy_residual_resample_is_biased(global_numpy_seed):
 
 
 def test_multinomial_variance_closed_form():
-    var = our_counts("multinomial").var(axis=0, ddof=1)
+    var = our_counts("roulette").var(axis=0, ddof=1)
     np.testing.assert_allclose(var, N * W * (1 - W), rtol=0.06)
 
 
@@ -120,12 +120,12 @@ def test_residual_variance_closed_form():
 
 
 def test_variance_ordering_systematic_stratified_multinomial():
-    v = {name: our_counts(name).var(axis=0, ddof=1) for name in ("systematic", "stratified", "multinomial")}
+    v = {name: our_counts(name).var(axis=0, ddof=1) for name in ("systematic", "stratified", "roulette")}
     total = {name: float(x.sum()) for name, x in v.items()}
     # measured: systematic ≈ 1.56, stratified ≈ 2.8, multinomial ≈ 8.6 (closed form 8.6)
-    assert total["systematic"] < total["stratified"] < total["multinomial"], total
+    assert total["systematic"] < total["stratified"] < total["roulette"], total
     # per particle, stratified never exceeds multinomial (theorem; 5 % sampling slack)
-    assert np.all(v["stratified"] <= 1.05 * v["multinomial"])
+    assert np.all(v["stratified"] <= 1.05 * v["roulette"])
 
 
 # --------------------------------------------------------------------------- against filterpy
@@ -133,7 +133,7 @@ def test_variance_ordering_systematic_stratified_multinomial():
 
 @pytest.mark.parametrize(
     "name, theirs",
-    [("multinomial", multinomial_resample), ("systematic", systematic_resample), ("stratified", stratified_resample)],
+    [("roulette", multinomial_resample), ("systematic", systematic_resample), ("stratified", stratified_resample)],
 )
 def test_same_offspring_distribution_as_filterpy(name, theirs, global_numpy_seed):
     global_numpy_seed(123)
@@ -159,7 +159,7 @@ def test_same_offspring_distribution_as_filterpy(name, theirs, global_numpy_seed
 
 @pytest.mark.parametrize(
     "name, theirs",
-    [("multinomial", multinomial_resample), ("systematic", systematic_resample), ("stratified", stratified_resample)],
+    [("roulette", multinomial_resample), ("systematic", systematic_resample), ("stratified", stratified_resample)],
 )
 def test_identical_indices_to_filterpy_on_a_shared_random_stream(name, theirs, global_numpy_seed):
     """With both reading the same MT19937 uniforms, the indices coincide exactly."""

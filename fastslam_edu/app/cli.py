@@ -65,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--smooth", action="store_true",
                      help="also solve the whole log by least squares from the filter's result (fastslam_edu.landmark.smoother): "
                           "the best estimate under the same model; its figures go under 'smoother'")
-    run.add_argument("--resampler", choices=("systematic", "stratified", "residual", "multinomial"), default="systematic")
+    run.add_argument("--resampler", choices=("systematic", "stratified", "residual", "roulette", "multinomial"), default="systematic")
     run.add_argument("--no-audit", action="store_true", help="do not correct swapped landmark table entries")
     run.add_argument("--json", type=Path, help="write the figures, parameters and seed to this JSON file")
     run.add_argument("--plot", type=Path, help="write a figure (map, path, errors) to this PNG")

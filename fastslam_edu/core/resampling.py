@@ -12,7 +12,7 @@ computed for all positions at once with :func:`numpy.searchsorted`
 =============  ====================================================  =========================
 scheme         positions                                             offspring-count variance
 =============  ====================================================  =========================
-multinomial    ``n`` independent ``U[0, 1)``, sorted ("roulette")     ``n w_i (1 - w_i)``
+roulette       ``n`` independent ``U[0, 1)``, sorted (multinomial)   ``n w_i (1 - w_i)``
 stratified     ``u_j = (j + U_j) / n``, one uniform per stratum       ≤ multinomial
 systematic     ``u_j = (j + U) / n``, one uniform for all             smallest in practice
 residual       ``⌊n w_i⌋`` copies, then multinomial on the rest       ``R r_i (1 - r_i)``
@@ -58,7 +58,7 @@ __all__ = [
     "validate_weights",
     "cumulative_weights",
     "inverse_cdf",
-    "multinomial",
+    "roulette",
     "stratified",
     "systematic",
     "residual",
@@ -202,7 +202,7 @@ def _number_of_draws(n, m: int) -> int:
     return int(n)
 
 
-def multinomial(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+def roulette(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
     """Multinomial ("roulette wheel") resampling: ``n`` independent draws.
 
     Positions ``u_j ~ U[0, 1)`` i.i.d. (sorted), then :func:`inverse_cdf`.
@@ -317,7 +317,7 @@ def residual(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
     n_rest = n - int(counts.sum())
     if n_rest > 0:
         rest = scaled - counts
-        drawn = multinomial(rest / rest.sum(), rng, n_rest)
+        drawn = roulette(rest / rest.sum(), rng, n_rest)
         counts += np.bincount(drawn, minlength=w.size)
     return np.repeat(np.arange(w.size), counts)
 
@@ -349,7 +349,8 @@ Resampler = Callable[..., np.ndarray]
 
 #: Name -> resampling function, for configuration files and the CLI.
 RESAMPLERS: dict[str, Resampler] = {
-    "multinomial": multinomial,
+    "roulette": roulette,
+    "multinomial": roulette,  # the statistician's name for the same wheel (filterpy: multinomial_resample)
     "systematic": systematic,
     "stratified": stratified,
     "residual": residual,

@@ -115,7 +115,7 @@ class FastSLAMParams(Params):
         :math:`R = \\mathrm{diag}(\\sigma_r^2, \\sigma_\\phi^2)` [m², rad²].
     resampler : str
         ``"systematic"`` (default, lowest variance), ``"stratified"``,
-        ``"residual"`` or ``"multinomial"`` (the roulette wheel).
+        ``"residual"`` or ``"roulette"`` (the roulette wheel, also called ``"multinomial"``).
     resample_threshold : float
         Resample when :math:`N_\\text{eff} < \\text{threshold}\\cdot M`; 1.0 resamples at
         every measurement step, whatever the weights (the write-up's behaviour), 0 never.
