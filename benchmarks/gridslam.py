@@ -38,7 +38,8 @@ from machine import machine_info  # noqa: E402
 
 from fastslam_edu.datasets import data_root  # noqa: E402
 from fastslam_edu.datasets.laser import read_carmen, read_intel_json, read_relations  # noqa: E402
-from fastslam_edu.grid.gridslam import GridSLAMParams, run_grid_slam, run_grid_slam_loop  # noqa: E402
+from fastslam_edu.grid.gridslam import GridSLAMParams, run_grid_slam  # noqa: E402
+from grid_loop import run_grid_slam_loop  # noqa: E402
 from fastslam_edu.evaluation.relations import reference_errors, score_trajectory  # noqa: E402
 from fastslam_edu.datasets.sim import simulate_laser_world  # noqa: E402
 

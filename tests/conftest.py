@@ -10,7 +10,7 @@ from pathlib import Path
 
 from hypothesis import settings
 
-# benchmarks/textbook_loop.py, the independent loop over particle objects the filter is tested against
+# benchmarks/textbook_loop.py and benchmarks/grid_loop.py: the loops over particle objects the filters are tested against
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 settings.register_profile("fixed", derandomize=True)

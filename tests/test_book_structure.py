@@ -172,3 +172,20 @@ def test_a_path_out_of_order_is_refused():
 def test_prerequisites_come_earlier():
     for name, before in PREREQUISITES.items():
         assert all(chapter_number(b) < chapter_number(name) for b in before), name
+
+
+def test_chapter_map_draws_every_chapter_and_dependency():
+    import matplotlib.pyplot as plt
+    from matplotlib.text import Annotation
+
+    from fastslam_edu.app.course import draw_chapter_map
+
+    fig = draw_chapter_map("three lectures")
+    ax = fig.axes[0]
+    arrows = [t for t in ax.texts if isinstance(t, Annotation)]
+    boxes = [t for t in ax.texts if not isinstance(t, Annotation)]
+    assert len(arrows) == sum(len(p) for p in PREREQUISITES.values())
+    assert sorted(int(b.get_text().split(".")[0]) for b in boxes) == list(range(1, len(CHAPTERS) + 1))
+    outlined = [b for b in boxes if b.get_bbox_patch().get_linewidth() > 2]
+    assert len(outlined) == sum(len(c) for c in PATHS["three lectures"].values())
+    plt.close(fig)

@@ -318,7 +318,7 @@ def test_bad_weights_raise(w, pattern):
 
 def test_bad_rng_and_n_raise():
     with pytest.raises(TypeError, match="numpy.random.Generator"):
-        rs.multinomial([1.0], np.random)
+        rs.roulette([1.0], np.random)
     with pytest.raises(TypeError, match="Generator"):
         rs.systematic([1.0], 42)
     for bad in (0, -3, 2.5, True):
@@ -328,8 +328,9 @@ def test_bad_rng_and_n_raise():
 
 def test_get_resampler_lists_valid_names():
     assert rs.get_resampler("systematic") is rs.systematic
-    assert set(rs.RESAMPLERS) == set(SCHEMES)
-    with pytest.raises(ValueError, match="multinomial, residual, stratified, systematic"):
+    assert set(rs.RESAMPLERS) == set(SCHEMES) | {"multinomial"}
+    assert rs.get_resampler("multinomial") is rs.get_resampler("roulette") is rs.roulette
+    with pytest.raises(ValueError, match="multinomial, residual, roulette, stratified, systematic"):
         rs.get_resampler("low_variance")
 
 

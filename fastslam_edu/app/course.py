@@ -6,7 +6,10 @@ notebooks and checks this), so :func:`draw_chapter_map` draws the dependencies t
 
 from __future__ import annotations
 
+import math
+
 import matplotlib.pyplot as plt
+from matplotlib.patches import Patch
 from matplotlib.figure import Figure
 
 __all__ = ["CHAPTERS", "PREREQUISITES", "PATHS", "PARTS", "chapter_number", "check_path", "draw_chapter_map"]
@@ -95,34 +98,75 @@ def check_path(sessions: dict[str, tuple[str, ...]]) -> None:
             seen.append(name)
 
 
+def _depths() -> dict[str, int]:
+    """Each chapter's depth: the length of the longest chain of prerequisites that leads to it."""
+    depth: dict[str, int] = {}
+    for name in CHAPTERS:  # reading order: prerequisites come first
+        depth[name] = 1 + max((depth[p] for p in PREREQUISITES[name]), default=-1)
+    return depth
+
+
+#: one row per part in the map, listed top to bottom
+_ROWS = {"Getting started": 0, "FastSLAM 1.0, one equation at a time": 0, "Landmark SLAM on MR.CLAM": 1,
+         "The tree trick": 2, "Grid SLAM with LiDAR": 3}
+
+
 def _positions() -> dict[str, tuple[float, float]]:
-    """One column per part, chapters top to bottom in reading order."""
-    xy = {}
-    for column, chapters in enumerate(PARTS.values()):
-        for row, name in enumerate(chapters):
-            xy[name] = (column * 2.6, -row * 1.0)
+    """Columns by depth (left to right), one row per part; chapters of a part at one depth stack downwards."""
+    depth, xy, used = _depths(), {}, {}
+    for caption, chapters in PARTS.items():
+        for name in chapters:
+            key = (_ROWS[caption], depth[name])
+            offset = used.get(key, 0)
+            used[key] = offset + 1
+            xy[name] = (depth[name] * 3.0, -(_ROWS[caption] * 2.0 + offset * 1.0))
     return xy
 
 
 def draw_chapter_map(path: str | None = None) -> Figure:
-    """The chapters as boxes in their parts, an arrow from each prerequisite; ``path`` shades one path's chapters."""
+    """The chapters as boxes, an arrow from each prerequisite; ``path`` shades one path's chapters."""
     xy = _positions()
     chosen = set() if path is None else {c for chapters in PATHS[path].values() for c in chapters}
-    fig, ax = plt.subplots(figsize=(13, 6.2))
-    for column, caption in enumerate(PARTS):
-        ax.text(column * 2.6, 0.75, caption.replace(", ", ",\n"), ha="center", va="bottom", fontsize=9,
-                fontweight="bold")
-    for name, (x, y) in xy.items():
-        face = "#ffd27f" if name in chosen else "#e8eef7"
-        ax.text(x, y, f"{chapter_number(name)}. {CHAPTERS[name]}", ha="center", va="center", fontsize=8.5,
-                bbox=dict(boxstyle="round,pad=0.35", fc=face, ec="#44546a"), zorder=3)
-        for before in PREREQUISITES[name]:
-            bx, by = xy[before]
-            ax.annotate("", xy=(x, y), xytext=(bx, by), zorder=1,
-                        arrowprops=dict(arrowstyle="-|>", color="#7f8c9d", shrinkA=14, shrinkB=14,
-                                        connectionstyle="arc3,rad=0.18" if bx == x else "arc3,rad=0.05"))
-    ax.set_xlim(-1.4, 2.6 * (len(PARTS) - 1) + 1.4)
-    ax.set_ylim(-6.6, 1.5)
+    colours = dict(zip(PARTS, ["#fdf6d3", "#e8eef7", "#e6f2e6", "#f2e6f2", "#f7efe1"]))
+    fig, ax = plt.subplots(figsize=(16, 6.5))
+    boxes = {}
+    for caption, chapters in PARTS.items():
+        for name in chapters:
+            label = f"{chapter_number(name)}. {CHAPTERS[name]}"
+            boxes[name] = ax.text(*xy[name], "\n".join(_wrap(label)), ha="center", va="center", fontsize=8,
+                                  zorder=3, bbox=dict(boxstyle="round,pad=0.35", fc=colours[caption],
+                                                      ec="#c0392b" if name in chosen else "#44546a",
+                                                      lw=2.2 if name in chosen else 0.8))
+    for name, before in PREREQUISITES.items():
+        for b in before:  # arrows clipped at the boxes' edges, so that their heads show
+            ax.annotate("", xy=xy[name], xytext=xy[b], zorder=4,
+                        arrowprops=dict(arrowstyle="-|>", color="#5d6d7e", shrinkA=1, shrinkB=1, mutation_scale=14,
+                                        patchA=boxes[b].get_bbox_patch(), patchB=boxes[name].get_bbox_patch(),
+                                        # a long arrow bends round the boxes between
+                                        connectionstyle=f"arc3,rad={_bend(xy[b], xy[name])}"))
+    ax.legend(handles=[Patch(fc=colours[c], ec="#44546a", label=c) for c in PARTS], loc="lower left",
+              fontsize=8, frameon=False)
+    xs = [x for x, _ in xy.values()]
+    ax.set_xlim(min(xs) - 1.4, max(xs) + 1.4)
+    ax.set_ylim(-7.6, 0.8)
     ax.axis("off")
-    ax.set_title("Chapters and what each builds on" + ("" if path is None else f" (shaded: {path})"))
+    ax.set_title("Chapters and what each builds on" + ("" if path is None else f" (outlined in red: {path})"))
     return fig
+
+
+def _wrap(label: str, width: int = 15) -> list[str]:
+    """``label`` in lines of at most about ``width`` characters, for a box."""
+    lines: list[str] = []
+    for word in label.split():
+        if lines and len(lines[-1]) + 1 + len(word) <= width:
+            lines[-1] += " " + word
+        else:
+            lines.append(word)
+    return lines
+
+
+def _bend(start: tuple[float, float], end: tuple[float, float]) -> float:
+    """How much an arrow bends: long arrows curve round the boxes between (a long drop to the right)."""
+    if math.dist(start, end) <= 3.7:
+        return 0.0
+    return -0.22 if end[1] - start[1] < -5 else 0.22

@@ -66,11 +66,12 @@ what scan matching adds.
 Implementations
 ---------------
 :func:`run_grid_slam` is vectorised over particles (one Python loop over
-scans); :func:`run_grid_slam_loop` is the same algorithm written with plain
-loops over particles and beams (Bresenham per beam, the write-up's roulette
-loop for resampling). Both consume the same random numbers — per step
-``M × 3`` standard normals for the motion, then one uniform if resampling —
-and give the same result (tests check it).
+scans, each step a method of :class:`GridRun`). ``benchmarks/grid_loop.py``
+holds the same algorithm written with plain loops over particles and beams
+(Bresenham per beam, the write-up's roulette loop for resampling): the
+reference the tests check this module against. Both consume the same random
+numbers — per step ``M × 3`` standard normals for the motion, then one
+uniform if resampling — and give the same result.
 """
 
 from __future__ import annotations
@@ -104,8 +105,8 @@ __all__ = [
     "add_scans",
     "scan_match",
     "ancestral_path",
+    "GridRun",
     "run_grid_slam",
-    "run_grid_slam_loop",
 ]
 
 #: ``"best"``: the write-up's one map, updated from the best particle; ``"particles"``: one map per particle (RBPF).
@@ -678,6 +679,101 @@ def ancestral_path(history: np.ndarray, parents: np.ndarray, last: int) -> np.nd
     return path
 
 
+@dataclass
+class GridRun:
+    """The state of :func:`run_grid_slam` between scans, and what it records (arrays over the N scans)."""
+
+    params: GridSLAMParams
+    grid: OccupancyGrid
+    offset: np.ndarray  # the laser in the robot frame (dx, dy) [m]
+    kernel: tuple | None
+    particles: np.ndarray  # (M, 3)
+    logw: np.ndarray  # (M,) normalised log weights
+    maps: np.ndarray | None  # (M, H, W) float32, maps="particles" only
+    parent_idx: np.ndarray  # (M,) the particle of the previous scan each one comes from
+    hist: np.ndarray  # (N, M, 3) poses after weighing scan k
+    parents: np.ndarray  # (N, M)
+    poses: np.ndarray  # (N, 3) the best particle's pose
+    n_eff: np.ndarray  # (N,)
+    resampled: np.ndarray  # (N,) bool
+    best_score: np.ndarray  # (N,)
+    beams_used: np.ndarray  # (N,)
+
+    @classmethod
+    def start(cls, params: GridSLAMParams, grid: OccupancyGrid, x0, first_scan, n: int, sensor_offset):
+        """All particles at ``x0``, weights 1/M, the first scan in the map(s) (``first_scan`` = ranges, angles)."""
+        m, off = params.n_particles, np.asarray(sensor_offset, dtype=float)
+        r, a = first_scan
+        grid.update(x0, scan_endpoints(x0, r, a, off), sensor_offset=off)
+        run = cls(params=params, grid=grid, offset=off,
+                  kernel=correlation_kernel(params.hit_sigma, grid.resolution) if params.hit_sigma > 0 else None,
+                  particles=np.tile(x0, (m, 1)), logw=np.full(m, -math.log(m)),
+                  maps=np.repeat(grid.log_odds.astype(np.float32)[None], m, axis=0) if params.maps == "particles"
+                  else None, parent_idx=np.arange(m), hist=np.empty((n, m, 3)),
+                  parents=np.zeros((n, m), dtype=np.int64), poses=np.empty((n, 3)), n_eff=np.empty(n),
+                  resampled=np.zeros(n, dtype=bool), best_score=np.zeros(n), beams_used=np.zeros(n, dtype=np.int64))
+        run.hist[0], run.poses[0], run.n_eff[0], run.beams_used[0] = run.particles, x0, m, len(r)
+        return run
+
+    def current_maps(self) -> np.ndarray:
+        """What particles are weighed against: each one's map, or the shared one."""
+        return self.maps if self.maps is not None else self.grid.log_odds
+
+    def weigh(self, k: int, u, scan, rng: np.random.Generator) -> np.ndarray:
+        """Steps 1–3 at scan ``k``: propagate (and scan-match), weigh by map correlation, normalise; returns w (M,)."""
+        r, a = scan
+        self.particles = sample_motion(self.particles, u, self.params, rng)
+        if self.params.match_iterations:  # optional: climb to the scan's best fit
+            self.particles = scan_match(self.particles, self.current_maps(), self.grid, r, a, self.params, self.offset)
+        rows, cols = endpoint_cells(self.grid, scan_endpoints(self.particles, r, a, self.offset))
+        scores = correlation(self.current_maps(), rows, cols, self.params.occupied_logodds, self.kernel)
+        self.logw = normalise_log_weights(self.logw + scores / self.params.temperature)
+        w = np.exp(self.logw)
+        best = int(np.argmax(self.logw))
+        self.hist[k], self.parents[k] = self.particles, self.parent_idx
+        self.poses[k], self.best_score[k], self.beams_used[k] = self.particles[best], scores[best], len(r)
+        self.n_eff[k] = effective_sample_size(w)
+        return w
+
+    def update_maps(self, scan) -> None:
+        """Step 4: the scan into every particle's map, or into the shared map from the best particle."""
+        r, a = scan
+        if not len(r):
+            return
+        if self.maps is not None:
+            add_scans(self.maps, self.grid, self.particles, r, a, self.params, self.offset)
+        else:
+            best = self.particles[int(np.argmax(self.logw))]
+            self.grid.update(best, scan_endpoints(best, r, a, self.offset), sensor_offset=self.offset)
+
+    def resample_if_needed(self, k: int, w, rng: np.random.Generator) -> None:
+        """Step 5: resample when ``N_eff < resample_threshold · M``; weights back to 1/M."""
+        m = len(w)
+        self.parent_idx = np.arange(m)
+        if self.n_eff[k] < self.params.resample_threshold * m:
+            idx = get_resampler(self.params.resampler)(w, rng)
+            self.particles, self.parent_idx = self.particles[idx], idx
+            if self.maps is not None:
+                self.maps = self.maps[idx]
+            self.logw = np.full(m, -math.log(m))
+            self.resampled[k] = True
+
+    def result(self, t, odometry, seconds: float) -> GridSLAMResult:
+        """The run's record, with the final best particle's ancestral path (and map)."""
+        best = int(np.argmax(self.logw))
+        path = ancestral_path(self.hist, self.parents, self.parent_idx[best])
+        grid = self.grid
+        if self.maps is not None:
+            grid = OccupancyGrid(grid.resolution, grid.origin, grid.shape, grid.l_occ, grid.l_free, grid.l_max,
+                                 self.maps[best].astype(float))
+        return GridSLAMResult(
+            t=np.asarray(t, dtype=float), poses=self.poses, path=path, odometry=odometry, grid=grid, maps=self.maps,
+            particles=self.particles, log_weights=self.logw, n_eff=self.n_eff, resampled=self.resampled,
+            best_score=self.best_score, beams_used=self.beams_used, params=self.params, filter_seconds=seconds,
+            history={"particles": self.hist, "parents": self.parents},
+        )
+
+
 def run_grid_slam(
     log: LaserLog,
     params: GridSLAMParams,
@@ -689,7 +785,7 @@ def run_grid_slam(
     progress: bool = False,
     n_scans: int | None = None,
 ) -> GridSLAMResult:
-    """Grid SLAM over a laser log, vectorised over particles.
+    """Grid SLAM over a laser log, vectorised over particles: steps 1–5 of the module docstring for each scan.
 
     Parameters
     ----------
@@ -717,224 +813,16 @@ def run_grid_slam(
         raise ValueError(f"run_grid_slam: rng must be a numpy.random.Generator, got {type(rng).__name__}")
     u, x0, odo = _prepare(log, increments, x0)
     n = len(log) if n_scans is None else min(int(n_scans), len(log))
-    m = params.n_particles
-    resample = get_resampler(params.resampler)
-    grid = grid_for_path(odo[:n], params)
-    per_particle = params.maps == "particles"
-    thr = params.occupied_logodds
-    kernel = correlation_kernel(params.hit_sigma, grid.resolution) if params.hit_sigma > 0 else None
-
     t_start = time.perf_counter()
-    particles = np.tile(x0, (m, 1))
-    logw = np.full(m, -math.log(m))
-    r, a = _beams(log, 0, params)
-    grid.update(x0, scan_endpoints(x0, r, a, sensor_offset), sensor_offset=sensor_offset)
-    maps = np.repeat(grid.log_odds.astype(np.float32)[None], m, axis=0) if per_particle else None
-
-    hist = np.empty((n, m, 3))
-    parents = np.zeros((n, m), dtype=np.int64)
-    poses = np.empty((n, 3))
-    n_eff = np.empty(n)
-    resampled = np.zeros(n, dtype=bool)
-    best_score = np.zeros(n)
-    beams_used = np.zeros(n, dtype=np.int64)
-    hist[0], poses[0], n_eff[0], beams_used[0] = particles, x0, m, len(r)
-    parent_idx = np.arange(m)
-    off = np.asarray(sensor_offset, dtype=float)
-
+    run = GridRun.start(params, grid_for_path(odo[:n], params), x0, _beams(log, 0, params), n, sensor_offset)
     steps = range(1, n)
     if progress:
         from tqdm.auto import tqdm
 
         steps = tqdm(steps, desc="grid SLAM", unit="scan", leave=False)
     for k in steps:
-        particles = sample_motion(particles, u[k], params, rng)  # 1. propagate
-        r, a = _beams(log, k, params)
-        beams_used[k] = len(r)
-        current = maps if per_particle else grid.log_odds
-        if params.match_iterations:
-            particles = scan_match(particles, current, grid, r, a, params, off)  # optional: climb to the scan's best fit
-        ends = scan_endpoints(particles, r, a, off)  # (M, B, 2)
-        rows, cols = endpoint_cells(grid, ends)
-        scores = correlation(current, rows, cols, thr, kernel)  # 2. map correlation
-        logw = normalise_log_weights(logw + scores / params.temperature)  # 2.–3. weigh, normalise
-        w = np.exp(logw)
-        best = int(np.argmax(logw))
-        hist[k], parents[k] = particles, parent_idx
-        poses[k], best_score[k] = particles[best], scores[best]
-        n_eff[k] = effective_sample_size(w)
-        if len(r):  # 4. the map(s)
-            if per_particle:
-                add_scans(maps, grid, particles, r, a, params, off)
-            else:
-                grid.update(particles[best], scan_endpoints(particles[best], r, a, off), sensor_offset=off)
-        parent_idx = np.arange(m)
-        if n_eff[k] < params.resample_threshold * m:  # 5. resample
-            idx = resample(w, rng)
-            particles, parent_idx = particles[idx], idx
-            if per_particle:
-                maps = maps[idx]
-            logw = np.full(m, -math.log(m))
-            resampled[k] = True
-    seconds = time.perf_counter() - t_start
-
-    best = int(np.argmax(logw))
-    last = parent_idx[best]  # index into hist[n-1]
-    path = ancestral_path(hist, parents, last)
-    if per_particle:
-        grid = OccupancyGrid(grid.resolution, grid.origin, grid.shape, grid.l_occ, grid.l_free, grid.l_max,
-                             maps[best].astype(float))
-    return GridSLAMResult(
-        t=np.asarray(log.t[:n], dtype=float), poses=poses, path=path, odometry=odo[:n], grid=grid, maps=maps,
-        particles=particles, log_weights=logw, n_eff=n_eff, resampled=resampled, best_score=best_score,
-        beams_used=beams_used, params=params, filter_seconds=seconds, history={"particles": hist, "parents": parents},
-    )
-
-
-# --------------------------------------------------------------------------- the loop reference
-
-
-def run_grid_slam_loop(
-    log: LaserLog,
-    params: GridSLAMParams,
-    rng: np.random.Generator,
-    *,
-    increments=None,
-    x0=None,
-    sensor_offset=(0.0, 0.0),
-    n_scans: int | None = None,
-) -> GridSLAMResult:
-    """The same algorithm as :func:`run_grid_slam`, with plain loops over particles and beams.
-
-    Written to be read next to the write-up: for each particle, draw three
-    normals and compose; for each beam, compute the endpoint with ``math.cos``
-    and look its cell up; map updates cast each beam with :func:`bresenham`;
-    resampling is the write-up's roulette loop with one uniform
-    ``r ~ U(0, 1/M)``. It consumes the same random numbers in the same order
-    as the vectorised version, so the same seed gives the same result. Only
-    the systematic resampler, and no scan matching.
-    """
-    if params.resampler != "systematic" or params.match_iterations:
-        raise ValueError("run_grid_slam_loop: only resampler='systematic' and match_iterations=0 are implemented")
-    u, x0, odo = _prepare(log, increments, x0)
-    n = len(log) if n_scans is None else min(int(n_scans), len(log))
-    m = params.n_particles
-    grid = grid_for_path(odo[:n], params)
-    per_particle = params.maps == "particles"
-    h, w_cells = grid.shape
-    x_0, y_0 = grid.origin
-    res = grid.resolution
-    ox, oy = (float(v) for v in sensor_offset)
-    offsets, kweights = correlation_kernel(params.hit_sigma, res)
-    offsets, kweights = offsets.tolist(), kweights.tolist()
-
-    def cell(x, y):
-        return math.floor((y - y_0) / res), math.floor((x - x_0) / res)
-
-    def endpoints(pose, r, a):
-        x, y, th = pose
-        sx, sy = x + math.cos(th) * ox - math.sin(th) * oy, y + math.sin(th) * ox + math.cos(th) * oy
-        return (sx, sy), [(sx + rb * math.cos(th + ab), sy + rb * math.sin(th + ab)) for rb, ab in zip(r, a)]
-
-    def add_scan(lo, pose, r, a):
-        (sx, sy), ends = endpoints(pose, r, a)
-        r0, c0 = cell(sx, sy)
-        free, hits = set(), set()
-        for ex, ey in ends:
-            r1, c1 = cell(ex, ey)
-            cells = bresenham(r0, c0, r1, c1)
-            hits.add((r1, c1))
-            free.update((int(i), int(j)) for i, j in cells[:-1])
-        for (i, j) in free - hits:
-            if 0 <= i < h and 0 <= j < w_cells:
-                lo[i][j] = min(max(lo[i][j] + params.l_free, -params.l_max), params.l_max)
-        for (i, j) in hits:
-            if 0 <= i < h and 0 <= j < w_cells:
-                lo[i][j] = min(max(lo[i][j] + params.l_occ, -params.l_max), params.l_max)
-
-    t_start = time.perf_counter()
-    r, a = _beams(log, 0, params)
-    shared = [[0.0] * w_cells for _ in range(h)]
-    add_scan(shared, tuple(x0), r, a)
-    maps = [[row[:] for row in shared] for _ in range(m)] if per_particle else None
-    particles = [tuple(float(v) for v in x0) for _ in range(m)]
-    logw = [-math.log(m)] * m
-    hist = [list(particles)]
-    parents = [list(range(m))]
-    parent_of = list(range(m))
-    poses = np.empty((n, 3))
-    poses[0] = x0
-    n_eff = np.full(n, float(m))
-    resampled = np.zeros(n, dtype=bool)
-    best_score = np.zeros(n)
-    for k in range(1, n):
-        r, a = (list(v) for v in _beams(log, k, params))
-        sigma = increment_noise_std(u[k], params)
-        scores = []
-        for i in range(m):  # 1. propagate particle i
-            e = rng.standard_normal(3)
-            du = [u[k][j] + sigma[j] * e[j] for j in range(3)]
-            x, y, th = particles[i]
-            particles[i] = (x + math.cos(th) * du[0] - math.sin(th) * du[1],
-                            y + math.sin(th) * du[0] + math.cos(th) * du[1],
-                            wrap_angle(th + du[2]))
-            lo = maps[i] if per_particle else shared
-            _, ends = endpoints(particles[i], r, a)
-            c = 0.0  # 2. correlation: endpoints on (or, with a kernel, near) occupied cells
-            for ex, ey in ends:
-                ci, cj = cell(ex, ey)
-                best_g = 0.0
-                for (di, dj), g in zip(offsets, kweights):
-                    ni, nj = ci + di, cj + dj
-                    if 0 <= ni < h and 0 <= nj < w_cells and lo[ni][nj] > params.occupied_logodds and g > best_g:
-                        best_g = g
-                c += best_g
-            scores.append(c)
-        logw = [lw + c / params.temperature for lw, c in zip(logw, scores)]  # 3. normalise
-        top = max(logw)
-        total = sum(math.exp(v - top) for v in logw)
-        logw = [v - top - math.log(total) for v in logw]
-        w = [math.exp(v) for v in logw]
-        best = max(range(m), key=lambda i: logw[i])
-        poses[k], best_score[k] = particles[best], scores[best]
-        hist.append(list(particles))
-        parents.append(parent_of)
-        parent_of = list(range(m))
-        n_eff[k] = 1.0 / sum(v * v for v in w)
-        if r:  # 4. map(s)
-            if per_particle:
-                for i in range(m):
-                    add_scan(maps[i], particles[i], r, a)
-            else:
-                add_scan(shared, particles[best], r, a)
-        if n_eff[k] < params.resample_threshold * m:  # 5. roulette wheel, one uniform
-            # pointers r + j/M with r ~ U(0, 1/M), written (j + U)/M; particle i owns [c_{i-1}, c_i)
-            total_w = 0.0
-            for v in w:
-                total_w += v
-            uniform = rng.random()
-            i, cum, new = 0, w[0] / total_w, []
-            for j in range(m):
-                pointer = (j + uniform) / m
-                while pointer >= cum and i < m - 1:
-                    i += 1
-                    cum += w[i] / total_w
-                new.append(i)
-            particles = [particles[i] for i in new]
-            parent_of = new
-            if per_particle:
-                maps = [[row[:] for row in maps[i]] for i in new]
-            logw = [-math.log(m)] * m
-            resampled[k] = True
-    seconds = time.perf_counter() - t_start
-    best = max(range(m), key=lambda i: logw[i])
-    path = ancestral_path(np.array(hist), np.array(parents), parent_of[best])
-    lo = np.array(maps[best] if per_particle else shared, dtype=float)
-    out = OccupancyGrid(grid.resolution, grid.origin, grid.shape, grid.l_occ, grid.l_free, grid.l_max, lo)
-    return GridSLAMResult(
-        t=np.asarray(log.t[:n], dtype=float), poses=poses, path=path, odometry=odo[:n], grid=out,
-        maps=np.array(maps, dtype=np.float32) if per_particle else None, particles=np.array(particles),
-        log_weights=np.array(logw), n_eff=n_eff, resampled=resampled, best_score=best_score,
-        beams_used=np.array([len(_beams(log, k, params)[0]) for k in range(n)]), params=params,
-        filter_seconds=seconds,
-    )
+        scan = _beams(log, k, params)
+        w = run.weigh(k, u[k], scan, rng)
+        run.update_maps(scan)
+        run.resample_if_needed(k, w, rng)
+    return run.result(log.t[:n], odo[:n], time.perf_counter() - t_start)
