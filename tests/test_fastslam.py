@@ -715,7 +715,7 @@ def test_combined_map_mixture_closed_form():
     "kwargs, match",
     [
         ({"mode": "slamm"}, "mode"),
-        ({"resampler": "roulette"}, "resampler"),
+        ({"resampler": "wheel"}, "resampler"),
         ({"measurement_cov": np.array([[1.0, 2.0], [2.0, 1.0]])}, "positive definite"),
         ({"measurement_cov": np.diag([0.01, np.nan])}, "positive definite"),
         ({"measurement_cov": np.eye(3)}, "2x2"),

@@ -29,7 +29,7 @@ import pytest
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.events import event_stream, groundtruth_at
 from fastslam_edu.landmark.fastslam import CHI2_2DOF_999, FastSLAMParams, run_fastslam
-from fastslam_edu.landmark.fastslam_tree import TreeParticleSet, run_fastslam_tree, update_trees_with_measurements
+from fastslam_edu.landmark.fastslam_tree import TreeParticleSet, run_fastslam_tree
 from fastslam_edu.landmark.tree import count_new_nodes, count_nodes, tree_depth
 from fastslam_edu.core.motion import MotionNoise
 from fastslam_edu.datasets.sim import simulate_dataset
@@ -180,7 +180,7 @@ def test_a_particle_for_which_the_sighting_is_an_outlier_keeps_its_tree():
     parts.trees = [t.set(3, mu, np.eye(2) * 0.01, count=2) for t, mu in zip(parts.trees, ([4.0, 1.0], [4.0, -4.0]))]
     old = list(parts.trees)
     z = np.array([[np.hypot(4.0, 1.0) + 0.02, np.arctan2(1.0, 4.0)]])
-    explained = update_trees_with_measurements(parts, z, [3], np.diag([0.05**2, 0.02**2]), gate_chi2=CHI2_2DOF_999)
+    explained = parts.update(z, [3], np.diag([0.05**2, 0.02**2]), gate_chi2=CHI2_2DOF_999)
     assert explained.tolist() == [True]
     assert parts.trees[1] is old[1] and parts.trees[0] is not old[0]
     assert count_new_nodes(parts.trees, old) == tree_depth(8) + 1

@@ -27,7 +27,8 @@ from hypothesis import strategies as st
 
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.core.ekf import gaussian_log_likelihood
-from fastslam_edu.landmark.fastslam import FastSLAMParams, ParticleSet, run_fastslam, update_with_measurements
+from fastslam_edu.landmark.fastslam import (FastSLAMParams, ParticleSet, make_sightings, run_fastslam,
+                                            update_with_sightings)
 from textbook_loop import run_fastslam_loop
 from fastslam_edu.landmark.fastslam_tree import TreeParticleSet
 from fastslam_edu.core.measurement import range_bearing
@@ -251,8 +252,8 @@ def test_the_update_weighs_with_the_fastslam2_weight():
     before = ps.logw.copy()
     proposal_loglik = _run_sampler(ps, z, [0])
     assert not np.allclose(ps.poses, x_bar)  # the poses moved
-    update_with_measurements(ps, z[None], np.array([0]), R, gate_chi2=27.6, power=np.array([0.5]),
-                             proposal_loglik=proposal_loglik)
+    update_with_sightings(ps, make_sightings(z[None], [0], R, len(ps), power=[0.5], proposal_loglik=proposal_loglik),
+                          gate_chi2=27.6)
     np.testing.assert_allclose(ps.logw - before, 0.5 * expected, atol=1e-9)
 
 
@@ -275,7 +276,7 @@ def test_two_landmarks_at_one_instant_weigh_one_after_the_other():
         expected.append(w1 + w2)
     before = ps.logw.copy()
     proposal_loglik = _run_sampler(ps, z, [0, 1])
-    update_with_measurements(ps, z, np.array([0, 1]), R, gate_chi2=27.6, proposal_loglik=proposal_loglik)
+    update_with_sightings(ps, make_sightings(z, [0, 1], R, len(ps), proposal_loglik=proposal_loglik), gate_chi2=27.6)
     np.testing.assert_allclose(ps.logw - before, expected, atol=1e-9)
 
 

@@ -144,6 +144,7 @@ def _read_thor_planar(path: Path, joints: Path | None, what: str):
 
 def cmd_run(args) -> int:
     from fastslam_edu.app.experiment import run_mrclam
+    from fastslam_edu.landmark.fastslam import ProgressBar
 
     if not args.data.is_dir():
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
@@ -152,8 +153,8 @@ def cmd_run(args) -> int:
     params = FastSLAMParams().replace(n_particles=args.particles, mode=args.mode, resampler=args.resampler,
                          proposal=args.proposal)
     result, summary, ctx = run_mrclam(
-        args.data, args.robot, params, args.seed, rate=args.rate, groundtruth_file=args.groundtruth,
-        progress=not args.quiet, audit=not args.no_audit, x0=args.x0,
+        args.data, args.robot, params, args.seed, rate=args.rate, x0=args.x0,
+        hooks=() if args.quiet else (ProgressBar(),), groundtruth_file=args.groundtruth, audit=not args.no_audit,
     )
     for note in summary["notes"]:
         print(f"note: {note}", file=sys.stderr)

@@ -26,7 +26,7 @@ from fastslam_edu.evaluation.audit import apply_landmark_audit
 from fastslam_edu.datasets.events import event_stream, groundtruth_at
 from fastslam_edu.datasets.log import Dataset, RobotLog
 from fastslam_edu.datasets.mrclam import groundtruth_files, read_dataset, read_groundtruth_csv, read_groundtruth_dat, robots_in
-from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, Kidnap, ProgressBar, run_fastslam
+from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, run_fastslam
 from fastslam_edu.landmark.initial_pose import initial_pose_from_landmarks
 from fastslam_edu.landmark.smoother import SmootherResult
 
@@ -193,23 +193,23 @@ def run_mrclam(
     seed: int = 0,
     *,
     rate: str = "full",
-    groundtruth_file=None,
-    progress: bool = False,
-    audit: bool = True,
-    kidnap=None,
     x0=None,
+    hooks=(),
+    **load_options,
 ):
     """Load, run and score FastSLAM on one robot of a MR.CLAM dataset.
 
     ``x0``: the initial pose ``(x, y, θ)``; ``"landmarks"`` to find it from the
     first sightings of the surveyed landmarks (:mod:`fastslam_edu.landmark.initial_pose`,
     for robots without groundtruth; the summary's notes say where it came from);
-    default the groundtruth at the first step.
+    default the groundtruth at the first step. ``hooks``: run alongside the filter
+    (:class:`~fastslam_edu.landmark.fastslam.Kidnap`, :class:`~fastslam_edu.landmark.fastslam.ProgressBar`, ...).
+    ``load_options`` go to :func:`load_mrclam` (``groundtruth_file``, ``audit``).
 
     Returns ``(result, summary, context)`` where ``context`` holds the dataset,
     the log, the event stream and the notes.
     """
-    dataset, log, notes = load_mrclam(path, robot, groundtruth_file=groundtruth_file, audit=audit)
+    dataset, log, notes = load_mrclam(path, robot, **load_options)
     notes += dropped_sightings_notes(log)
     if isinstance(x0, str):
         if x0 != "landmarks":
@@ -234,7 +234,7 @@ def run_mrclam(
         np.random.default_rng(seed),
         landmarks=dataset.landmark_positions,
         groundtruth_poses=gt_fn,
-        hooks=([Kidnap(*kidnap)] if kidnap is not None else []) + ([ProgressBar()] if progress else []),
+        hooks=hooks,
     )
     summary = summarize(result, dataset, log)
     summary.update(

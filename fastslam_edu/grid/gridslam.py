@@ -83,9 +83,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import logit
 
-from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.laser import LaserLog, odometry_increments
-from fastslam_edu.grid.occupancy import (OccupancyGrid, bresenham, cell_values, ray_cells_batch, scan_endpoints,
+from fastslam_edu.grid.occupancy import (OccupancyGrid, cell_values, ray_cells_batch, scan_endpoints,
                                          update_maps)
 from fastslam_edu.core.params import Params
 from fastslam_edu.core.resampling import get_resampler

@@ -257,9 +257,9 @@ class ParticleSet:
 
     def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
                power=None, proposal_loglik=None) -> np.ndarray:
-        """Step 2 for the measurements of one instant: :func:`update_with_measurements`."""
-        return update_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2, escape=escape,
-                                        power=power, proposal_loglik=proposal_loglik)
+        """Step 2 for the measurements of one instant: :func:`update_with_sightings`."""
+        sightings = make_sightings(z, k, R, len(self), escape=escape, power=power, proposal_loglik=proposal_loglik)
+        return update_with_sightings(self, sightings, gate_chi2=gate_chi2, update_map=update_map)
 
     def to_particle_set(self) -> "ParticleSet":
         """The set as dense arrays: itself (see the tree storage of :mod:`fastslam_edu.landmark.fastslam_tree`)."""
@@ -357,18 +357,40 @@ def update_with_measurement(particles: ParticleSet, z, k: int, R, **options) -> 
                                          **options)[0])
 
 
-def update_with_measurements(
-    particles: ParticleSet,
-    z,
-    k,
-    R,
-    *,
-    update_map: bool = True,
-    gate_chi2: float | None = None,
-    escape=None,
-    power=None,
-    proposal_loglik=None,
-) -> np.ndarray:
+def make_sightings(z, k, R, n_particles: int, *, escape=None, power=None, proposal_loglik=None) -> Sightings:
+    """The sightings of one instant as the step's kernels take them (:class:`fastslam_edu.landmark.fastslam_step.Sightings`).
+
+    ``z`` (n, 2), ``k`` (n,), ``R`` (n, 2, 2) or (2, 2); ``escape`` (n,) bool
+    (default none escapes the gate), ``power`` (n,) the likelihoods' exponents β
+    (default 1), ``proposal_loglik`` (M, n) log weights that replace FastSLAM
+    1.0's where not NaN (default all NaN).
+    """
+    z = np.asarray(z, dtype=float).reshape(-1, 2)
+    n = len(z)
+    k = np.asarray(k, dtype=np.int64).reshape(-1)
+    R = np.asarray(R, dtype=float)
+    if R.shape != (n, 2, 2):
+        R = np.broadcast_to(R, (n, 2, 2)).copy()
+    escape = np.zeros(n, dtype=bool) if escape is None else np.asarray(escape, dtype=bool).reshape(-1)
+    power = np.ones(n) if power is None else np.asarray(power, dtype=float).reshape(-1)
+    if len(escape) != n or len(power) != n:
+        escape, power = np.broadcast_to(escape, (n,)).copy(), np.broadcast_to(power, (n,)).copy()
+    loglik = (np.full((n_particles, n), np.nan) if proposal_loglik is None
+              else np.asarray(proposal_loglik, float).reshape(n_particles, n))
+    return Sightings(z, k, R, escape, power, loglik)
+
+
+def update_with_sightings(particles: ParticleSet, sightings: Sightings, *, gate_chi2: float | None = None,
+                          update_map: bool = True) -> np.ndarray:
+    """Step 2 for the sightings of one instant (:func:`make_sightings`); see :func:`update_with_measurements`."""
+    explained = np.ones(len(sightings.j), dtype=bool)
+    update_particles(particles.arrays(), sightings, np.inf if gate_chi2 is None else float(gate_chi2),
+                     bool(update_map), explained)
+    return explained
+
+
+def update_with_measurements(particles: ParticleSet, z, k, R, *, update_map: bool = True,
+                             gate_chi2: float | None = None, escape=None, power=None) -> np.ndarray:
     """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,), in order.
 
     Lines 5–17 of table 13.1 for every particle
@@ -395,31 +417,17 @@ def update_with_measurements(
         Measurements applied without the gate (:class:`Gate`).
     power : (n,), optional
         Exponents :math:`\\beta` of their likelihoods (:func:`evidence_fractions`; default 1).
-    proposal_loglik : (M, n), optional
-        Where not NaN, log-likelihoods to weigh with instead of FastSLAM 1.0's
-        (:func:`fastslam_edu.landmark.proposal.sample_improved_poses`).
+
+    FastSLAM 2.0 weighs with its own log weights: :func:`make_sightings` (``proposal_loglik``)
+    and :func:`update_with_sightings`.
 
     Returns
     -------
     explained : (n,) bool
         False where no particle explains the measurement (rejected by the gate, unless escaped).
     """
-    z = np.asarray(z, dtype=float).reshape(-1, 2)
-    n, M = len(z), len(particles)
-    k = np.asarray(k, dtype=np.int64).reshape(-1)
-    R = np.asarray(R, dtype=float)
-    if R.shape != (n, 2, 2):
-        R = np.broadcast_to(R, (n, 2, 2)).copy()
-    escape = np.zeros(n, dtype=bool) if escape is None else np.asarray(escape, dtype=bool).reshape(-1)
-    power = np.ones(n) if power is None else np.asarray(power, dtype=float).reshape(-1)
-    if len(escape) != n or len(power) != n:
-        escape, power = np.broadcast_to(escape, (n,)).copy(), np.broadcast_to(power, (n,)).copy()
-    loglik = np.full((M, n), np.nan) if proposal_loglik is None else np.asarray(proposal_loglik, float).reshape(M, n)
-    sightings = Sightings(z, k, R, escape, power, loglik)
-    explained = np.ones(n, dtype=bool)
-    update_particles(particles.arrays(), sightings, np.inf if gate_chi2 is None else float(gate_chi2),
-                     bool(update_map), explained)
-    return explained
+    sightings = make_sightings(z, k, R, len(particles), escape=escape, power=power)
+    return update_with_sightings(particles, sightings, gate_chi2=gate_chi2, update_map=update_map)
 
 
 def evidence_fractions(t, landmarks, last_seen, tau: float | None) -> np.ndarray:
@@ -892,6 +900,8 @@ __all__ = [
     "combined_heading",
     "update_with_measurement",
     "update_with_measurements",
+    "make_sightings",
+    "update_with_sightings",
     "evidence_fractions",
     "Gate",
     "Hook",

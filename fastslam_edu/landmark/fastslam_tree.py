@@ -16,7 +16,7 @@ logw       (M,) array              :math:`\\log w^{[m]}`
   :math:`\\lceil \\log_2 K \\rceil + 1` nodes: :math:`O(M \\log K)` per measurement;
 * the EKF arithmetic itself is the array engine's: the few landmarks measured
   at an instant are read out of the trees (:func:`~fastslam_edu.landmark.tree.gather`),
-  updated by :func:`fastslam_edu.landmark.fastslam.update_with_measurements` (the compiled
+  updated by :func:`fastslam_edu.landmark.fastslam.update_with_sightings` (the compiled
   per-particle step), and written back into new trees
   (:func:`~fastslam_edu.landmark.tree.set_each`).
 
@@ -46,8 +46,9 @@ from fastslam_edu.landmark.fastslam import (
     FastSLAMParams,
     FastSLAMResult,
     ParticleSet,
+    make_sightings,
     run_fastslam,
-    update_with_measurements,
+    update_with_sightings,
 )
 from fastslam_edu.landmark.tree import LandmarkTree, gather, set_each, trees_to_arrays
 from fastslam_edu.core.weights import weights_from_log
@@ -55,7 +56,7 @@ from fastslam_edu.core.weights import weights_from_log
 __all__ = [
     "TreeParticleSet",
     "FastSLAMTreeResult",
-    "update_trees_with_measurements",
+    "update_trees_with_sightings",
     "run_fastslam_tree",
 ]
 
@@ -113,9 +114,9 @@ class TreeParticleSet:
 
     def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
                power=None, proposal_loglik=None) -> np.ndarray:
-        """Step 2 for the measurements of one instant: :func:`update_trees_with_measurements`."""
-        return update_trees_with_measurements(self, z, k, R, update_map=update_map, gate_chi2=gate_chi2,
-                                              escape=escape, power=power, proposal_loglik=proposal_loglik)
+        """Step 2 for the measurements of one instant: :func:`update_trees_with_sightings`."""
+        sightings = make_sightings(z, k, R, len(self), escape=escape, power=power, proposal_loglik=proposal_loglik)
+        return update_trees_with_sightings(self, sightings, gate_chi2=gate_chi2, update_map=update_map)
 
     def to_particle_set(self) -> ParticleSet:
         """The same particles as a dense :class:`~fastslam_edu.landmark.fastslam.ParticleSet` (:math:`O(MK)`)."""
@@ -127,35 +128,32 @@ class TreeParticleSet:
 # ---------------------------------------------------------------- step 2 on trees
 
 
-def update_trees_with_measurements(
-    particles: TreeParticleSet, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
-    power=None, proposal_loglik=None,
-) -> np.ndarray:
-    """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,).
+def update_trees_with_sightings(particles: TreeParticleSet, sightings, *, gate_chi2: float | None = None,
+                                update_map: bool = True) -> np.ndarray:
+    """Step 2 for the sightings of one instant (:func:`~fastslam_edu.landmark.fastslam.make_sightings`).
 
     1. **Read** the :math:`n' \\le n` distinct landmarks measured out of every
        particle's tree (:func:`~fastslam_edu.landmark.tree.gather`,
        :math:`O(M n' \\log K)`) into a small :class:`~fastslam_edu.landmark.fastslam.ParticleSet`
        of :math:`n'` landmarks, which shares ``poses`` and ``logw`` with ``particles``.
     2. **Update** it with the array engine's own
-       :func:`~fastslam_edu.landmark.fastslam.update_with_measurements` — initialisation,
+       :func:`~fastslam_edu.landmark.fastslam.update_with_sightings` — initialisation,
        EKF update, weights, robust gate: the same numbers, by construction.
     3. **Write back** each landmark that changed in a particle (mean, covariance,
        seen or count) by path copying (:func:`~fastslam_edu.landmark.tree.set_each`,
        :math:`O(\\log K)` each); a particle whose landmark did not change (an
        outlier for it, or a known map) keeps its tree.
 
-    ``R`` is (2, 2) or one per measurement (n, 2, 2). Returns a bool (n,):
-    False where no particle explains the measurement (rejected by the gate, unless escaped).
+    Returns a bool (n,): False where no particle explains the measurement
+    (rejected by the gate, unless escaped).
     """
-    k = np.asarray(k, dtype=int).reshape(-1)
-    keys, local = np.unique(k, return_inverse=True)  # local index of each measurement's landmark
+    keys, local = np.unique(sightings.j, return_inverse=True)  # local index of each measurement's landmark
     mu, sigma, seen, count = gather(particles.trees, keys)
     mu[~seen], sigma[~seen] = 0.0, np.eye(2)  # the array engine's values for a landmark not seen yet
     before = mu.copy(), sigma.copy(), seen.copy(), count.copy()
     measured = ParticleSet(poses=particles.poses, mu=mu, sigma=sigma, seen=seen, logw=particles.logw, count=count)
-    explained = update_with_measurements(measured, z, local, R, update_map=update_map, gate_chi2=gate_chi2,
-                                        escape=escape, power=power, proposal_loglik=proposal_loglik)
+    explained = update_with_sightings(measured, sightings._replace(j=local.astype(np.int64).reshape(-1)),
+                                      gate_chi2=gate_chi2, update_map=update_map)
     particles.logw = measured.logw
     changed = ((mu != before[0]).any(axis=-1) | (sigma != before[1]).any(axis=(-2, -1))
                | (seen != before[2]) | (count != before[3]))  # (M, n')
