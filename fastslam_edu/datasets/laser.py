@@ -287,72 +287,72 @@ def read_carmen(path, *, no_return: float | None = None) -> LaserLog:
     path = Path(path)
     params: dict[str, str] = {}
     counts: dict[str, int] = {}
-    t, ranges, poses, odoms, last_odom = [], [], [], [], []
-    first_odom = None
-    current_odom = np.full(3, np.nan)
-    n_beams = None
+    scans = []  # (t, ranges, pose, odom pose, last ODOM) per FLASER line
+    first_odom, current_odom = None, np.full(3, np.nan)
     for lineno, line in _text_lines(path):
         tok = line.split()
         if not tok:
             continue
         kind = tok[0] if not tok[0].startswith("#") else "#"
         counts[kind] = counts.get(kind, 0) + 1
-        if kind == "PARAM":
-            if len(tok) >= 3:
-                params[tok[1]] = tok[2]
+        if kind == "PARAM" and len(tok) >= 3:
+            params[tok[1]] = tok[2]
         elif kind == "ODOM":
-            if len(tok) < 4:
-                raise ValueError(
-                    f"{path}:{lineno}: ODOM line has {len(tok)} fields, expected at least 4 (ODOM x y θ …)"
-                )
-            pose = _floats(tok[1:4], path, lineno, "ODOM pose")
-            if not np.isfinite(pose).all():
-                raise ValueError(f"{path}:{lineno}: non-finite ODOM pose {pose.tolist()}")
-            current_odom = pose
-            if first_odom is None:
-                first_odom = pose
+            current_odom = _odom_pose(tok, path, lineno)
+            first_odom = current_odom if first_odom is None else first_odom
         elif kind == "FLASER":
-            try:
-                n = int(tok[1])
-            except (IndexError, ValueError):
-                raise ValueError(
-                    f"{path}:{lineno}: FLASER line must start with the beam count, got {tok[1:2]}"
-                ) from None
-            if n < 1 or len(tok) < n + 9:
-                raise ValueError(
-                    f"{path}:{lineno}: short FLASER line: {len(tok)} fields for n = {n} beams, expected "
-                    f"{n + 11} (FLASER n r_1…r_n x y θ odom_x odom_y odom_θ ipc_t host logger_t)"
-                )
-            if n_beams is None:
-                n_beams = n
-            elif n != n_beams:
-                raise ValueError(f"{path}:{lineno}: FLASER with {n} beams after scans of {n_beams} beams")
-            r = _floats(tok[2 : 2 + n], path, lineno, "FLASER ranges")
-            both = _floats(tok[2 + n : 8 + n], path, lineno, "FLASER pose")
-            if not np.isfinite(both).all():
-                raise ValueError(f"{path}:{lineno}: non-finite FLASER pose {both.tolist()}")
-            stamp = tok[-1] if len(tok) >= n + 11 else tok[8 + n]
-            t.append(_floats([stamp], path, lineno, "FLASER timestamp")[0])
-            ranges.append(r)
-            poses.append(both[:3])
-            odoms.append(both[3:])
-            last_odom.append(current_odom)
-    if not t:
+            scans.append(_flaser(tok, path, lineno, len(scans[0][1]) if scans else None) + (current_odom,))
+    if not scans:
         raise ValueError(f"{path}: no FLASER line (counted messages: {counts})")
+    return _carmen_log(path, scans, params, counts, first_odom, no_return)
+
+
+def _odom_pose(tok, path: Path, lineno: int) -> np.ndarray:
+    """The ``x y θ`` of an ``ODOM`` line, checked."""
+    if len(tok) < 4:
+        raise ValueError(f"{path}:{lineno}: ODOM line has {len(tok)} fields, expected at least 4 (ODOM x y θ …)")
+    pose = _floats(tok[1:4], path, lineno, "ODOM pose")
+    if not np.isfinite(pose).all():
+        raise ValueError(f"{path}:{lineno}: non-finite ODOM pose {pose.tolist()}")
+    return pose
+
+
+def _flaser(tok, path: Path, lineno: int, n_beams: int | None):
+    """``(t, ranges, pose, odom pose)`` of a ``FLASER`` line, checked (``n_beams``: that of the earlier scans)."""
+    try:
+        n = int(tok[1])
+    except (IndexError, ValueError):
+        raise ValueError(f"{path}:{lineno}: FLASER line must start with the beam count, got {tok[1:2]}") from None
+    if n < 1 or len(tok) < n + 9:
+        raise ValueError(
+            f"{path}:{lineno}: short FLASER line: {len(tok)} fields for n = {n} beams, expected "
+            f"{n + 11} (FLASER n r_1…r_n x y θ odom_x odom_y odom_θ ipc_t host logger_t)"
+        )
+    if n_beams is not None and n != n_beams:
+        raise ValueError(f"{path}:{lineno}: FLASER with {n} beams after scans of {n_beams} beams")
+    r = _floats(tok[2 : 2 + n], path, lineno, "FLASER ranges")
+    both = _floats(tok[2 + n : 8 + n], path, lineno, "FLASER pose")
+    if not np.isfinite(both).all():
+        raise ValueError(f"{path}:{lineno}: non-finite FLASER pose {both.tolist()}")
+    stamp = tok[-1] if len(tok) >= n + 11 else tok[8 + n]
+    return _floats([stamp], path, lineno, "FLASER timestamp")[0], r, both[:3], both[3:]
+
+
+def _carmen_log(path: Path, scans, params: dict, counts: dict, first_odom, no_return) -> LaserLog:
+    """The :class:`LaserLog` of the scans read by :func:`read_carmen` (conventions there)."""
+    t, ranges, poses, odoms, last_odom = (np.array(column) for column in zip(*scans))
     if no_return is None:
         no_return = _param_float(params, "robot_front_laser_max", path, DEFAULT_NO_RETURN)
     resolution_deg = _param_float(params, "laser_front_laser_resolution", path, None)
     step = None if resolution_deg is None else math.radians(resolution_deg)
-    ranges = np.array(ranges)
     ranges[~(np.isfinite(ranges) & (ranges > 0) & (ranges < no_return))] = np.nan
-    poses, odoms = np.array(poses), np.array(odoms)
     poses[:, 2] = wrap_angle(poses[:, 2])
     odometry = None if np.array_equal(poses[:, :2], odoms[:, :2]) and np.allclose(
         wrap_angle(poses[:, 2] - odoms[:, 2]), 0.0, atol=1e-12
     ) else odoms
     return LaserLog(
-        t=np.array(t), ranges=ranges, angles=carmen_angles(n_beams, step), poses=poses, odometry=odometry,
-        source=str(path), max_range=float(no_return), last_odom=np.array(last_odom),
+        t=t, ranges=ranges, angles=carmen_angles(ranges.shape[1], step), poses=poses, odometry=odometry,
+        source=str(path), max_range=float(no_return), last_odom=last_odom,
         first_odom=first_odom, params=params, counts=counts,
     )
 

@@ -52,6 +52,7 @@ from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.log import Dataset, RobotLog
 from fastslam_edu.core.measurement import range_bearing
 from fastslam_edu.core.motion import MotionNoise, propagate_arc
+from fastslam_edu.core.params import Params
 
 #: Controller constants: heading gain [1/s], acceleration limits, waypoint radius [m].
 HEADING_GAIN = 1.5
@@ -527,76 +528,48 @@ def _loop_waypoints(width: float, height: float) -> np.ndarray:
     return np.array(route, dtype=float)
 
 
-def simulate_laser_world(
-    seed_or_rng: int | np.random.Generator,
-    *,
-    width: float = 16.0,
-    height: float = 10.0,
-    n_beams: int = 181,
-    fov: float = math.pi,
-    max_range: float = 12.0,
-    range_std: float = 0.01,
-    step: float = 0.4,
-    turn_step: float = 0.35,
-    laps: int = 1,
-    trans_noise: float = 0.05,
-    rot_noise: float = 0.03,
-    rot_per_metre: float = 0.02,
-    rot_bias: float = 0.01,
-) -> LaserWorld:
-    """Simulate a robot with a planar laser driving around a small office (known truth).
+@dataclass(frozen=True, eq=False)
+class LaserSimSettings(Params):
+    """The simulated office, laser, route and odometry of :func:`simulate_laser_world`.
 
-    World: :func:`floor_plan` (outer walls, corridor, four rooms with doors and
-    pillars). True path: the route of :func:`_loop_waypoints` driven ``laps``
-    times; a scan is taken every ``step`` metres along straight legs and every
-    ``turn_step`` radians while turning in place at the waypoints, so the
-    per-scan increments look like GMapping's processed scans (translate *or*
-    turn). Ranges: exact ray casting (:func:`ray_cast`) plus ``N(0, range_std²)``.
-
-    Odometry: with the true increment ``u_k = x_{k−1}⁻¹ ⊕ x_k``
-    (``d_k = ‖(Δx, Δy)‖``), the recorded increment is::
-
-        û_k = u_k + (σ_t ε₁, σ_t ε₂, σ_θ ε₃ + b d_k),
-        σ_t = trans_noise · d_k,  σ_θ = rot_noise · |Δθ_k| + rot_per_metre · d_k,
-
-    with ``ε ~ N(0, I)`` and a systematic heading drift ``b = rot_bias`` [rad/m]
-    (real odometry drifts one way); the odometry poses are
-    ``o_k = o_{k−1} ⊕ û_k`` from ``o_0 = x_0``.
-
-    Parameters
-    ----------
-    seed_or_rng : int or numpy.random.Generator
-        Same seed → same world, path and noise.
-    width, height : float
-        Floor size [m].
-    n_beams, fov : int, float
-        Beams spread evenly over ``[−fov/2, fov/2]`` [rad] (181 over 180°).
-    max_range, range_std : float
-        [m].
-    step, turn_step : float
-        Scan spacing [m] on straight legs and [rad] in turns.
-    laps : int
-        Times the route is driven.
-    trans_noise, rot_noise, rot_per_metre, rot_bias : float
-        Odometry noise as above [m/m, rad/rad, rad/m, rad/m].
-
-    Returns
-    -------
-    LaserWorld
-        ``log`` (a :class:`~fastslam_edu.datasets.laser.LaserLog`, scans 1 s
-        apart), ``truth`` (N, 3), ``walls`` (S, 2, 2).
+    ``width, height`` floor size [m]; ``n_beams`` beams spread evenly over
+    ``[−fov/2, fov/2]`` [rad] (181 over 180°); ``max_range``, ``range_std`` [m];
+    ``step`` [m] and ``turn_step`` [rad]: scan spacing on straight legs and in
+    turns; ``laps``: times the route is driven; ``trans_noise, rot_noise,
+    rot_per_metre, rot_bias``: odometry noise [m/m, rad/rad, rad/m, rad/m]
+    (:func:`noisy_odometry`).
     """
-    from fastslam_edu.datasets.laser import LaserLog
-    from fastslam_edu.core.se2 import compose_increments, path_increments
 
-    rng = _generator(seed_or_rng)
-    for name, v in (("step", step), ("turn_step", turn_step), ("max_range", max_range)):
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"simulate_laser_world: {name} must be > 0, got {v}")
-    if int(laps) < 1 or int(n_beams) < 2:
-        raise ValueError(f"simulate_laser_world: need laps ≥ 1 and n_beams ≥ 2, got {laps}, {n_beams}")
-    walls = floor_plan(width, height)
-    route = np.concatenate([_loop_waypoints(width, height)[:-1]] * int(laps) + [_loop_waypoints(width, height)[-1:]])
+    width: float = 16.0
+    height: float = 10.0
+    n_beams: int = 181
+    fov: float = math.pi
+    max_range: float = 12.0
+    range_std: float = 0.01
+    step: float = 0.4
+    turn_step: float = 0.35
+    laps: int = 1
+    trans_noise: float = 0.05
+    rot_noise: float = 0.03
+    rot_per_metre: float = 0.02
+    rot_bias: float = 0.01
+
+    def __post_init__(self):
+        for name in ("step", "turn_step", "max_range"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"simulate_laser_world: {name} must be > 0, got {v}")
+        if int(self.laps) < 1 or int(self.n_beams) < 2:
+            raise ValueError(f"simulate_laser_world: need laps ≥ 1 and n_beams ≥ 2, got {self.laps}, {self.n_beams}")
+
+
+def drive_route(route, step: float, turn_step: float) -> np.ndarray:
+    """Poses (N, 3) along ``route`` (W, 2): turn in place at each waypoint, then drive the leg straight.
+
+    A pose every ``turn_step`` radians while turning and every ``step`` metres on
+    a leg, so that consecutive poses differ by a translation *or* a turn, like
+    GMapping's processed scans.
+    """
     poses = []
     heading = math.atan2(route[1, 1] - route[0, 1], route[1, 0] - route[0, 0])
     for a, b in zip(route[:-1], route[1:]):
@@ -614,24 +587,76 @@ def simulate_laser_world(
         for i in range(0 if not poses else 1, n + 1):
             p = a + leg * i / n
             poses.append((p[0], p[1], heading))
-    truth = np.array(poses)
-    angles = np.linspace(-fov / 2, fov / 2, int(n_beams))
-    ranges = np.array([ray_cast(p, angles, walls, max_range) for p in truth])
-    ranges = ranges + range_std * rng.standard_normal(ranges.shape)
+    return np.array(poses)
+
+
+def noisy_odometry(truth, settings: LaserSimSettings, rng: np.random.Generator) -> np.ndarray:
+    """Odometry poses (N, 3) from the true poses, with noise that grows with the increment.
+
+    With the true increment ``u_k = x_{k−1}⁻¹ ⊕ x_k`` (``d_k = ‖(Δx, Δy)‖``), the
+    recorded increment is::
+
+        û_k = u_k + (σ_t ε₁, σ_t ε₂, σ_θ ε₃ + b d_k),
+        σ_t = trans_noise · d_k,  σ_θ = rot_noise · |Δθ_k| + rot_per_metre · d_k,
+
+    with ``ε ~ N(0, I)`` and a systematic heading drift ``b = rot_bias`` [rad/m]
+    (real odometry drifts one way); the odometry poses are
+    ``o_k = o_{k−1} ⊕ û_k`` from ``o_0 = x_0``.
+    """
+    from fastslam_edu.core.se2 import compose_increments, path_increments
+
     u = path_increments(truth)
     d = np.hypot(u[:, 0], u[:, 1])
     eps = rng.standard_normal(u.shape)
     u_hat = u + np.column_stack([
-        trans_noise * d * eps[:, 0],
-        trans_noise * d * eps[:, 1],
-        (rot_noise * np.abs(u[:, 2]) + rot_per_metre * d) * eps[:, 2] + rot_bias * d,
+        settings.trans_noise * d * eps[:, 0],
+        settings.trans_noise * d * eps[:, 1],
+        (settings.rot_noise * np.abs(u[:, 2]) + settings.rot_per_metre * d) * eps[:, 2] + settings.rot_bias * d,
     ])
-    odo = compose_increments(truth[0], u_hat)
+    return compose_increments(truth[0], u_hat)
+
+
+def simulate_laser_world(seed_or_rng: int | np.random.Generator, settings: LaserSimSettings | None = None,
+                         **changes) -> LaserWorld:
+    """Simulate a robot with a planar laser driving around a small office (known truth).
+
+    World: :func:`floor_plan` (outer walls, corridor, four rooms with doors and
+    pillars). True path: the route of :func:`_loop_waypoints` driven ``laps``
+    times (:func:`drive_route`). Ranges: exact ray casting (:func:`ray_cast`)
+    plus ``N(0, range_std²)``. Odometry: :func:`noisy_odometry`.
+
+    Parameters
+    ----------
+    seed_or_rng : int or numpy.random.Generator
+        Same seed → same world, path and noise.
+    settings : LaserSimSettings, optional
+        Default ``LaserSimSettings()``.
+    **changes
+        Settings to change, by name (``simulate_laser_world(0, laps=2)``).
+
+    Returns
+    -------
+    LaserWorld
+        ``log`` (a :class:`~fastslam_edu.datasets.laser.LaserLog`, scans 1 s
+        apart), ``truth`` (N, 3), ``walls`` (S, 2, 2).
+    """
+    from fastslam_edu.datasets.laser import LaserLog
+
+    rng = _generator(seed_or_rng)
+    s = (LaserSimSettings() if settings is None else settings).replace(**changes)
+    walls = floor_plan(s.width, s.height)
+    waypoints = _loop_waypoints(s.width, s.height)
+    truth = drive_route(np.concatenate([waypoints[:-1]] * int(s.laps) + [waypoints[-1:]]), s.step, s.turn_step)
+    angles = np.linspace(-s.fov / 2, s.fov / 2, int(s.n_beams))
+    ranges = np.array([ray_cast(p, angles, walls, s.max_range) for p in truth])
+    ranges = ranges + s.range_std * rng.standard_normal(ranges.shape)
+    odo = noisy_odometry(truth, s, rng)
     log = LaserLog(
         t=np.arange(len(truth), dtype=float), ranges=ranges, angles=angles, poses=odo, odometry=odo.copy(),
-        source="simulate_laser_world", max_range=float(max_range),
+        source="simulate_laser_world", max_range=float(s.max_range),
     )
     return LaserWorld(log=log, truth=truth, walls=walls)
 
 
-__all__ += ["LaserWorld", "floor_plan", "ray_cast", "simulate_laser_world"]
+__all__ += ["LaserWorld", "LaserSimSettings", "floor_plan", "ray_cast", "drive_route", "noisy_odometry",
+            "simulate_laser_world"]

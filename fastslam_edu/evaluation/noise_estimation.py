@@ -332,19 +332,7 @@ def measurement_residuals(log: RobotLog, landmarks, subjects=None, *, max_gap: f
     gt = usable_groundtruth(log, glitch_threshold)
     max_gap = _check_max_gap(max_gap)
     table = _landmark_table(landmarks, subjects)
-    m = log.measurements
-    missing = [c for c in ("time", "subject", "range", "bearing") if c not in m.columns]
-    if missing:
-        raise ValueError(f"robot {log.robot}: measurements are missing columns {missing}")
-    values = m[["time", "range", "bearing"]].to_numpy(dtype=float)
-    bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
-    if bad.size:
-        raise ValueError(f"robot {log.robot}: measurement row {int(bad[0])} has NaN or inf: {values[bad[0]].tolist()}")
-    subject = m["subject"].to_numpy(dtype=np.int64)
-    unknown = sorted(set(subject.tolist()) - set(table.index.tolist()))
-    if unknown:
-        raise ValueError(f"robot {log.robot} measures subjects {unknown} that have no landmark position")
-
+    values, subject = _checked_measurements(log, table)
     t_gt = gt["time"].to_numpy()
     t = values[:, 0]
     inside = (t >= t_gt[0]) & (t <= t_gt[-1])
@@ -373,6 +361,23 @@ def measurement_residuals(log: RobotLog, landmarks, subjects=None, *, max_gap: f
     out.attrs.update(robot=int(log.robot), n_measurements=int(t.size), n_outside_span=int((~inside).sum()),
                      n_in_gaps=int((inside & ~keep).sum()), glitches=gt.attrs["glitches"])
     return out
+
+
+def _checked_measurements(log: RobotLog, table: pd.DataFrame):
+    """``(values (n, 3): time, range, bearing; subject (n,))`` of the log's sightings, checked against ``table``."""
+    m = log.measurements
+    missing = [c for c in ("time", "subject", "range", "bearing") if c not in m.columns]
+    if missing:
+        raise ValueError(f"robot {log.robot}: measurements are missing columns {missing}")
+    values = m[["time", "range", "bearing"]].to_numpy(dtype=float)
+    bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+    if bad.size:
+        raise ValueError(f"robot {log.robot}: measurement row {int(bad[0])} has NaN or inf: {values[bad[0]].tolist()}")
+    subject = m["subject"].to_numpy(dtype=np.int64)
+    unknown = sorted(set(subject.tolist()) - set(table.index.tolist()))
+    if unknown:
+        raise ValueError(f"robot {log.robot} measures subjects {unknown} that have no landmark position")
+    return values, subject
 
 
 def _residual_frame(residuals) -> pd.DataFrame:
