@@ -458,6 +458,18 @@ def path_from_increments(x, dx, dy, theta, *, wrap: bool = True) -> np.ndarray:
     return path
 
 
+def dead_reckon(x0, u, dt) -> np.ndarray:
+    """The path of the commands alone: the motion model's Euler steps without noise, shape (L, 3).
+
+    ``x0`` (3,) the start, ``u`` (L, 2) the commands ``(v, ω)``, ``dt`` (L,) the
+    step lengths [s]; row ``i`` is the pose after step ``i``. θ is **not**
+    wrapped (a continuous heading, so that differences count whole turns).
+    """
+    x0 = np.asarray(x0, dtype=float).reshape(1, 3)
+    dx, dy, theta = segment_increments(x0, u, dt, MotionNoise(), np.zeros((1, len(dt), 2)))
+    return path_from_increments(x0, dx, dy, theta, wrap=False)[0]
+
+
 def sample_motion(x, u, dt: float, noise: MotionNoise, rng: np.random.Generator) -> np.ndarray:
     """Draw new poses from ``p(x_t | x_{t-1}, u_t)``: :func:`move` with fresh normals.
 

@@ -68,7 +68,7 @@ from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.log import Dataset, RobotLog
 from fastslam_edu.core.measurement import landmark_from_measurement, range_bearing
 from fastslam_edu.core.se2 import interpolate_poses
-from fastslam_edu.core.motion import MotionNoise, move_segment
+from fastslam_edu.core.motion import MotionNoise, dead_reckon
 
 #: Default largest groundtruth gap [s] to interpolate over (1 Hz data have 1 s gaps; a removed glitch makes 2 s).
 MAX_GAP = 1.5
@@ -602,7 +602,7 @@ def dead_reckoning(odometry: pd.DataFrame, times, x0=(0.0, 0.0, 0.0)) -> np.ndar
 
     The command ``(v_i, ω_i)`` of row ``i`` is held from ``t_i`` until the
     next row (zero before the first row); the path is a chain of Euler steps
-    (:func:`fastslam_edu.core.motion.move_segment` with zero noise) between the
+    (:func:`fastslam_edu.core.motion.dead_reckon`) between the
     sorted union of the odometry times and ``times``, starting at ``x0`` at
     ``min(times[0], t_0)``.
 
@@ -633,11 +633,8 @@ def dead_reckoning(odometry: pd.DataFrame, times, x0=(0.0, 0.0, 0.0)) -> np.ndar
     knots = knots[knots <= q[-1]]
     row = np.searchsorted(odo[:, 0], knots[:-1], side="right") - 1
     u = np.where(row[:, None] >= 0, odo[np.maximum(row, 0), 1:3], 0.0)
-    dt = np.diff(knots)
-    x0 = np.asarray(x0, dtype=float).reshape(1, 3)
-    path = move_segment(x0, u, dt, MotionNoise(), np.zeros((1, dt.size, 2)))[0]
-    path = np.vstack([x0, path])
-    path[:, 2] = x0[0, 2] + np.concatenate([[0.0], np.cumsum(u[:, 1] * dt)])  # continuous heading
+    x0 = np.asarray(x0, dtype=float)
+    path = np.vstack([x0, dead_reckon(x0, u, np.diff(knots))])
     return path[np.searchsorted(knots, q)]
 
 

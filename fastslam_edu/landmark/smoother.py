@@ -51,7 +51,7 @@ from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions, stream_commands
 from fastslam_edu.core.measurement import innovation, jacobian_landmark, jacobian_pose, landmark_from_measurement, range_bearing
-from fastslam_edu.core.motion import MotionNoise, path_from_increments, segment_increments
+from fastslam_edu.core.motion import MotionNoise, dead_reckon
 from fastslam_edu.core.params import Params
 from fastslam_edu.core.se2 import relative
 
@@ -131,14 +131,11 @@ def keyframe_steps(stream: EventStream, max_gap_s: float = 1.0) -> np.ndarray:
 def dead_reckoning(stream: EventStream, x0, odometry_scale=(1.0, 1.0)) -> np.ndarray:
     """The pose after every step from the commands alone: shape (len(stream), 3), θ continuous.
 
-    The filter's motion model (:func:`fastslam_edu.core.motion.segment_increments`) without noise,
-    with the commands times ``odometry_scale`` (:func:`fastslam_edu.landmark.fastslam.stream_commands`).
+    :func:`fastslam_edu.core.motion.dead_reckon` of the commands times ``odometry_scale``
+    (:func:`fastslam_edu.landmark.fastslam.stream_commands`).
     """
-    x0 = np.asarray(x0, dtype=float).reshape(1, 3)
-    u, _ = stream_commands(stream, FastSLAMParams(odometry_scale=tuple(odometry_scale)))
-    eps = np.zeros((1, len(stream), 2))
-    dx, dy, theta = segment_increments(x0, u, stream.dt, MotionNoise(), eps)
-    return path_from_increments(x0, dx, dy, theta, wrap=False)[0]
+    u, dt = stream_commands(stream, FastSLAMParams(odometry_scale=tuple(odometry_scale)))
+    return dead_reckon(x0, u, dt)
 
 
 def odometry_factors(stream: EventStream, path: np.ndarray, keys: np.ndarray, noise: MotionNoise):
