@@ -43,6 +43,7 @@ landmark has been rejected for ``gate_escape_s`` seconds (:func:`update_with_mea
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -312,7 +313,7 @@ def propagate(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.
 
 def draw_normals(rng: np.random.Generator, shape) -> np.ndarray:
     """``rng.standard_normal(shape)``, the same numbers, drawn by the compiled loop when there are many."""
-    if np.prod(shape) < 4096:
+    if math.prod(shape) < 4096:
         return rng.standard_normal(shape)
     out = np.empty(shape)
     standard_normals(rng, out)
@@ -371,13 +372,17 @@ def make_sightings(z, k, R, n_particles: int, *, escape=None, power=None, propos
     R = np.asarray(R, dtype=float)
     if R.shape != (n, 2, 2):
         R = np.broadcast_to(R, (n, 2, 2)).copy()
-    escape = np.zeros(n, dtype=bool) if escape is None else np.asarray(escape, dtype=bool).reshape(-1)
-    power = np.ones(n) if power is None else np.asarray(power, dtype=float).reshape(-1)
-    if len(escape) != n or len(power) != n:
-        escape, power = np.broadcast_to(escape, (n,)).copy(), np.broadcast_to(power, (n,)).copy()
+    escape = np.zeros(n, dtype=bool) if escape is None else _per_sighting(escape, bool, n)
+    power = np.ones(n) if power is None else _per_sighting(power, float, n)
     loglik = (np.full((n_particles, n), np.nan) if proposal_loglik is None
               else np.asarray(proposal_loglik, float).reshape(n_particles, n))
     return Sightings(z, k, R, escape, power, loglik)
+
+
+def _per_sighting(values, dtype, n: int) -> np.ndarray:
+    """``values`` as an (n,) array of ``dtype`` (one value is repeated)."""
+    values = np.asarray(values, dtype=dtype).reshape(-1)
+    return values if len(values) == n else np.broadcast_to(values, (n,)).copy()
 
 
 def update_with_sightings(particles: ParticleSet, sightings: Sightings, *, gate_chi2: float | None = None,
