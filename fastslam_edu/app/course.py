@@ -32,6 +32,7 @@ CHAPTERS: dict[str, str] = {
     "14_occupancy_grid": "Occupancy grids",
     "15_grid_slam": "Grid SLAM",
     "16_thor_humanoid": "SLAM on a humanoid (THOR)",
+    "17_ekf_slam": "EKF-SLAM, the baseline",
 }
 
 #: Chapter -> the chapters it builds on directly (each of them comes earlier).
@@ -52,6 +53,7 @@ PREREQUISITES: dict[str, tuple[str, ...]] = {
     "14_occupancy_grid": ("02_motion_model",),
     "15_grid_slam": ("06_resampling", "14_occupancy_grid"),
     "16_thor_humanoid": ("15_grid_slam",),
+    "17_ekf_slam": ("12_consistency",),
 }
 
 #: The book's parts, for the map's columns: caption -> chapters.
@@ -63,6 +65,7 @@ PARTS: dict[str, tuple[str, ...]] = {
                                 "11_fastslam2_proposal", "12_consistency"),
     "The tree trick": ("13_landmark_tree",),
     "Grid SLAM with LiDAR": ("14_occupancy_grid", "15_grid_slam", "16_thor_humanoid"),
+    "Beyond FastSLAM": ("17_ekf_slam",),
 }
 
 #: Two ways through the book: path -> sessions -> chapters (reading before the first session included).
@@ -108,7 +111,7 @@ def _depths() -> dict[str, int]:
 
 #: one row per part in the map, listed top to bottom
 _ROWS = {"Getting started": 0, "FastSLAM 1.0, one equation at a time": 0, "Landmark SLAM on MR.CLAM": 1,
-         "The tree trick": 2, "Grid SLAM with LiDAR": 3}
+         "The tree trick": 2, "Grid SLAM with LiDAR": 3, "Beyond FastSLAM": 1}
 
 
 def _positions() -> dict[str, tuple[float, float]]:
@@ -127,7 +130,7 @@ def draw_chapter_map(path: str | None = None) -> Figure:
     """The chapters as boxes, an arrow from each prerequisite; ``path`` shades one path's chapters."""
     xy = _positions()
     chosen = set() if path is None else {c for chapters in PATHS[path].values() for c in chapters}
-    colours = dict(zip(PARTS, ["#fdf6d3", "#e8eef7", "#e6f2e6", "#f2e6f2", "#f7efe1"]))
+    colours = dict(zip(PARTS, ["#fdf6d3", "#e8eef7", "#e6f2e6", "#f2e6f2", "#f7efe1", "#e3f1f4"]))
     fig, ax = plt.subplots(figsize=(16, 6.5))
     boxes = {}
     for caption, chapters in PARTS.items():
@@ -144,7 +147,7 @@ def draw_chapter_map(path: str | None = None) -> Figure:
                                         patchA=boxes[b].get_bbox_patch(), patchB=boxes[name].get_bbox_patch(),
                                         # a long arrow bends round the boxes between
                                         connectionstyle=f"arc3,rad={_bend(xy[b], xy[name])}"))
-    ax.legend(handles=[Patch(fc=colours[c], ec="#44546a", label=c) for c in PARTS], loc="lower left",
+    ax.legend(handles=[Patch(fc=colours[c], ec="#44546a", label=c) for c in PARTS], loc="lower right",
               fontsize=8, frameon=False)
     xs = [x for x, _ in xy.values()]
     ax.set_xlim(min(xs) - 1.4, max(xs) + 1.4)
