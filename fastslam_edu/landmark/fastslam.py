@@ -31,7 +31,10 @@ logw       (M,)            :math:`\\log w^{[m]}` (unnormalised)
 Steps 1 and 2 run particle by particle, as table 13.1 of *Probabilistic
 Robotics* reads, in the compiled kernels of :mod:`fastslam_edu.landmark.fastslam_step`;
 this module holds the particle set, the resampling and combining steps and the
-driver that runs them over a log.
+driver that runs them over a log. The driver's loop (:func:`run_fastslam`) is
+Python, step by step, with hooks; a run without hooks, with FastSLAM 1.0's
+proposal on the dense particle set, makes the same steps with the same random
+numbers in one compiled call (:meth:`FilterRun.run_compiled`).
 
 What real data needs beyond the textbook (see :mod:`fastslam_edu.evaluation.noise_estimation`):
 noise densities per √s (independent of the odometry rate), and a gate against
@@ -52,8 +55,9 @@ from scipy.stats import chi2
 
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.landmark.fastslam_step import (Particles, Sightings, normalise_weights, sample_segment,
-                                                standard_normals, update_particles, weighted_mean_pose)
+from fastslam_edu.landmark.fastslam_step import (RESAMPLER_CODES, Log, Particles, Record, Settings, Sightings,
+                                                 normalise_weights, run_segments, sample_segment, standard_normals,
+                                                 update_particles, weighted_mean_pose)
 from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.core.params import Params
 from fastslam_edu.landmark.proposal import motion_prediction, sample_improved_poses, segment_motion
@@ -474,8 +478,8 @@ def resample_if_needed(
     weights are uniform (the evidence is now in the particle counts — keeping
     the old weights as well would count it twice).
     """
-    w = particles.weights
-    n_eff = 1.0 / np.dot(w, w)  # effective_sample_size(w), without re-checking w
+    w = np.empty(len(particles))
+    n_eff = normalise_weights(np.asarray(particles.logw, dtype=float), w)  # and N_eff = 1 / Σ w²
     if threshold >= 1.0 or n_eff < threshold * len(particles):  # 1.0: at every call (the write-up)
         return particles.select(get_resampler(resampler)(w, rng)), n_eff, True
     return particles, n_eff, False
@@ -798,6 +802,32 @@ class FilterRun:
         weighted_mean_pose(self.particles.poses, self.w, self.pose_mean[e])
         self.pose_best[e] = self.particles.poses[int(np.argmax(self.w))]
 
+    def compiled(self, hooks) -> bool:
+        """Whether :meth:`run_compiled` can run this filter: FastSLAM 1.0's proposal, dense particles, no hooks."""
+        return (not hooks and type(self.proposal) is MotionProposal and type(self.particles) is ParticleSet
+                and self.params.resampler in RESAMPLER_CODES)
+
+    def run_compiled(self, segments: np.ndarray) -> None:
+        """Steps 1–4 over all ``segments`` in one compiled call (:func:`fastslam_edu.landmark.fastslam_step.run_segments`):
+        the same lines as the Python loop of :func:`run_fastslam` and the same random numbers, without
+        returning to Python between steps."""
+        p, stream = self.params, self.stream
+        log = Log(np.asarray(stream.t, dtype=float), self.u, self.dt, np.asarray(stream.offsets, dtype=np.int64),
+                  np.asarray(stream.z, dtype=float).reshape(-1, 2), np.asarray(stream.landmark, dtype=np.int64),
+                  np.ascontiguousarray(self.R))
+        settings = Settings(p.motion_noise.densities, p.motion_noise.n_draws,
+                            math.inf if self.gate.chi2 is None else float(self.gate.chi2), self.gate.escape_s,
+                            0.0 if p.measurement_correlation_s is None else float(p.measurement_correlation_s),
+                            self.update_map, float(p.resample_threshold), RESAMPLER_CODES[p.resampler])
+        n_instants = int(np.count_nonzero(np.diff(stream.offsets)))
+        record = Record(self.pose_mean, self.pose_best, np.empty(n_instants), np.empty(n_instants),
+                        np.array(self.w, dtype=float), self.gate.unexplained_since, self.last_seen,
+                        np.zeros(4, dtype=np.int64))
+        run_segments(self.particles.arrays(), log, settings, segments, self.rng, record)
+        self.w = record.w
+        self.ess_t, self.ess = list(record.ess_t), list(record.ess)
+        self.used, self.rejected, self.n_resamples = (int(v) for v in record.totals[1:])
+
     def result(self, filter_seconds: float) -> FastSLAMResult:
         """Step 4 at the end: the combined map and the run's record."""
         final, particles = self.particles, self.particles.to_particle_set()
@@ -881,6 +911,9 @@ def run_fastslam(
                     particle_class=particle_class)
     cut_times = [t for hook in hooks for t in hook.cut_times]
     t_start = time.perf_counter()
+    if run.compiled(hooks):  # the same steps in one compiled call
+        run.run_compiled(np.array(list(_segments(stream, cut_times)), dtype=np.int64).reshape(-1, 2))
+        return run.result(time.perf_counter() - t_start)
     for s, e in _segments(stream, cut_times):
         run.measured = stream.offsets[e + 1] > stream.offsets[e]
         last = e if run.measured else e + 1  # a measurement step's estimate is taken after the update

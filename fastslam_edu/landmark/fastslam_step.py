@@ -19,7 +19,13 @@ where each line is computed::
 
 What real data adds to the table (see :mod:`fastslam_edu.landmark.fastslam`): the outlier
 gate (a sighting that *no* particle explains, :func:`explains`, is set aside), its
-escape, and tempered likelihoods (the log weight grows by :math:`\\beta \\log \\mathcal N`).
+escape (:func:`gate_escapes`, :func:`gate_record`), and tempered likelihoods (the log
+weight grows by :math:`\\beta \\log \\mathcal N`, :func:`tempering_exponents`).
+
+The whole run: :func:`run_segments` chains line 4 over each run of odometry steps
+(:func:`sample_segment`) and steps 2–4 at each measurement step (:func:`measure_instant`:
+the update, the weights, resampling when :math:`N_\\text{eff}` is low, the combined pose),
+so that a run over a log returns to Python once, not once per step.
 
 The particle set is passed as :class:`Particles`, a named tuple of arrays
 (:math:`M` particles, :math:`K` landmarks), and changed in place:
@@ -276,3 +282,171 @@ def weighted_mean_pose(poses, w, out):
         c += w[m] * math.cos(poses[m, 2])
     out[0], out[1], out[2] = x, y, wrap_one(math.atan2(s, c))
 
+
+
+# ---------------------------------------------------------------- what the run remembers of past sightings
+
+
+@njit(cache=True)
+def gate_escapes(t, j, unexplained_since, escape_s, escape):
+    """``escape[i]``: sighting ``i`` (of landmark ``j[i]``, at time ``t``) skips the gate.
+
+    True once the landmark's sightings have been unexplained since
+    ``unexplained_since[j]`` for ``escape_s`` seconds or more (``inf`` while explained).
+    """
+    for i in range(j.shape[0]):
+        escape[i] = t - unexplained_since[j[i]] >= escape_s
+
+
+@njit(cache=True)
+def gate_record(t, j, explained, unexplained_since):
+    """Note which sightings at ``t`` some particle explained: ``inf`` for those, else the first unexplained time."""
+    since = unexplained_since[j]  # read before writing: a landmark may be seen twice in one instant
+    for i in range(j.shape[0]):
+        unexplained_since[j[i]] = math.inf if explained[i] else min(since[i], t)
+
+
+@njit(cache=True)
+def tempering_exponents(t, j, last_seen, tau, beta):
+    """``beta[i] = min(1, (t - last_seen[j[i]]) / tau)``, then ``last_seen[j] = t``; ``tau <= 0``: all 1 (textbook)."""
+    if tau <= 0.0:
+        beta[:] = 1.0
+        return
+    for i in range(j.shape[0]):
+        beta[i] = min(1.0, (t - last_seen[j[i]]) / tau)
+    for i in range(j.shape[0]):
+        last_seen[j[i]] = t
+
+
+# ---------------------------------------------------------------- step 3: resampling, compiled
+
+
+RESAMPLER_CODES = {"systematic": 0, "stratified": 1, "roulette": 2, "multinomial": 2}
+
+
+@njit(cache=True)
+def resampling_indices(w, rng, code):
+    """The particles drawn by resampler ``code`` (:data:`RESAMPLER_CODES`): the numbers of :mod:`fastslam_edu.core.resampling`.
+
+    Positions ``u_j``: systematic ``(j + U) / M``; stratified ``(j + U_j) / M``;
+    roulette ``U_j`` sorted; then the inverse CDF, ``min{i : c_i > u_j}``.
+    """
+    m = w.shape[0]
+    if code == 0:
+        u = (np.arange(m) + rng.random()) / m
+    elif code == 1:
+        u = (np.arange(m) + rng.random(m)) / m
+    else:
+        u = np.sort(rng.random(m))
+    c = np.cumsum(w / np.sum(w))
+    c = c / c[-1]
+    u = np.minimum(np.maximum(u, 0.0), 1.0 - 2.0**-53)
+    return np.searchsorted(c, u, side="right")
+
+
+@njit(cache=True)
+def select_in_place(P, idx):
+    """The particles ``idx`` replace the set, their maps copied (no two offspring share memory); log weights 0."""
+    P.poses[:] = P.poses[idx]
+    P.mu[:] = P.mu[idx]
+    P.sigma[:] = P.sigma[idx]
+    P.seen[:] = P.seen[idx]
+    P.count[:] = P.count[idx]
+    P.logw[:] = 0.0
+
+
+# ---------------------------------------------------------------- the run over a chunk of the log
+
+
+class Log(NamedTuple):
+    """The event stream as the compiled run takes it (:class:`fastslam_edu.datasets.log.EventStream`).
+
+    t (N,) [s]; u (N, 2) commands; dt (N,) [s]; offsets (N + 1,): the sightings of
+    step k are ``offsets[k]:offsets[k + 1]`` of z (n, 2), j (n,), R (n, 2, 2).
+    """
+
+    t: np.ndarray
+    u: np.ndarray
+    dt: np.ndarray
+    offsets: np.ndarray
+    z: np.ndarray
+    j: np.ndarray
+    R: np.ndarray
+
+
+class Settings(NamedTuple):
+    """noise (4,) densities; n_draws 2 or 3; gate_chi2 (inf: none); escape_s; tau (0: no tempering);
+    update_map; resample_threshold; resampler (:data:`RESAMPLER_CODES`)."""
+
+    noise: np.ndarray
+    n_draws: int
+    gate_chi2: float
+    escape_s: float
+    tau: float
+    update_map: bool
+    resample_threshold: float
+    resampler: int
+
+
+class Record(NamedTuple):
+    """What the run writes: pose_mean, pose_best (N, 3); ess_t, ess (one per measurement step);
+    w (M,) the current normalised weights; unexplained_since, last_seen (K,) the gate's and the
+    tempering's memory; totals (4,) int: measurement steps, sightings used, rejected, resamples."""
+
+    pose_mean: np.ndarray
+    pose_best: np.ndarray
+    ess_t: np.ndarray
+    ess: np.ndarray
+    w: np.ndarray
+    unexplained_since: np.ndarray
+    last_seen: np.ndarray
+    totals: np.ndarray
+
+
+@njit(cache=True)
+def measure_instant(P, L, s, k, rng, out):
+    """Steps 2–4 at measurement step ``k``: gate, update, weights, resampling, the combined pose.
+
+    ``P`` :class:`Particles`, ``L`` :class:`Log`, ``s`` :class:`Settings`, ``out`` :class:`Record`.
+    """
+    a, b = L.offsets[k], L.offsets[k + 1]
+    j, t = L.j[a:b], L.t[k]
+    n = b - a
+    escape, beta, explained = np.empty(n, dtype=np.bool_), np.empty(n), np.ones(n, dtype=np.bool_)
+    gate_escapes(t, j, out.unexplained_since, s.escape_s, escape)
+    tempering_exponents(t, j, out.last_seen, s.tau, beta)
+    S = Sightings(L.z[a:b], j, L.R[a:b], escape, beta, np.full((P.poses.shape[0], n), np.nan))
+    update_particles(P, S, s.gate_chi2, s.update_map, explained)
+    gate_record(t, j, explained, out.unexplained_since)
+    for i in range(n):
+        if explained[i] or escape[i]:
+            out.totals[1] += 1
+        else:
+            out.totals[2] += 1
+    n_eff = normalise_weights(P.logw, out.w)
+    out.ess_t[out.totals[0]], out.ess[out.totals[0]] = t, n_eff
+    out.totals[0] += 1
+    m = P.poses.shape[0]
+    if s.resample_threshold >= 1.0 or n_eff < s.resample_threshold * m:
+        select_in_place(P, resampling_indices(out.w, rng, s.resampler))
+        out.w[:] = 1.0 / m
+        out.totals[3] += 1
+    weighted_mean_pose(P.poses, out.w, out.pose_mean[k])
+    out.pose_best[k] = P.poses[np.argmax(out.w)]
+
+
+@njit(cache=True)
+def run_segments(P, L, s, segments, rng, out):
+    """Steps 1–4 over ``segments`` (S, 2): runs of steps ``start..end``, each ending at a measurement step
+    or a cut; for each, line 4 for every particle (:func:`sample_segment`), then :func:`measure_instant`."""
+    m = P.poses.shape[0]
+    for r in range(segments.shape[0]):
+        first, last = segments[r, 0], segments[r, 1]
+        measured = L.offsets[last + 1] > L.offsets[last]
+        n_record = last - first + (0 if measured else 1)  # a measurement step's estimate comes after the update
+        eps = np.empty((m, last - first + 1, s.n_draws))
+        standard_normals(rng, eps)
+        sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
+                       out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
+        if measured:
+            measure_instant(P, L, s, last, rng, out)
