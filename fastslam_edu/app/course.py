@@ -41,7 +41,7 @@ PREREQUISITES: dict[str, tuple[str, ...]] = {
     "02_motion_model": ("01_mrclam_data",),
     "03_measurement_model": ("01_mrclam_data",),
     "04_one_landmark_ekf": ("03_measurement_model",),
-    "05_importance_weights": ("04_one_landmark_ekf",),
+    "05_importance_weights": ("02_motion_model", "04_one_landmark_ekf"),
     "06_resampling": ("05_importance_weights",),
     "07_putting_it_together": ("02_motion_model", "06_resampling"),
     "08_writeup_experiments": ("07_putting_it_together",),
