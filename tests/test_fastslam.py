@@ -824,3 +824,28 @@ def test_the_step_runs_as_plain_python_with_the_same_numbers(tmp_path):
     np.testing.assert_allclose(plain["pose_mean"], r.pose_mean, rtol=0, atol=1e-9)
     np.testing.assert_allclose(plain["mu"], r.particles.mu, rtol=0, atol=1e-9)
     np.testing.assert_allclose(plain["logw"], r.particles.logw, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("resampler, threshold, mode, noise_on", [
+    ("systematic", 0.5, "slam", "control"), ("stratified", 0.5, "slam", "state"),
+    ("roulette", 1.0, "slam", "control"), ("systematic", 0.5, "localize", "control"),
+])
+def test_compiled_run_equals_the_python_loop(resampler, threshold, mode, noise_on):
+    """run_fastslam without hooks runs in one compiled call; with a hook, its Python loop: the same numbers."""
+    data, log, stream = simulate(7, duration=30.0)
+    noise = fs.MotionNoise(sigma_v=0.05, sigma_omega=0.05) if noise_on == "control" else \
+        fs.MotionNoise(mode="state", sigma_xy=0.03, sigma_theta=0.03)
+    params = FastSLAMParams(n_particles=40, resampler=resampler, resample_threshold=threshold, mode=mode,
+                            motion_noise=noise)
+    kw = dict(landmarks=data.landmark_positions)
+    run = fs.start_run(stream, params, 0, **kw)
+    assert run.compiled(())
+    compiled = run_fastslam(stream, params, 5, **kw)
+    looped = run_fastslam(stream, params, 5, hooks=[fs.Hook()], **kw)
+    assert compiled.n_resamples == looped.n_resamples > 0
+    assert compiled.measurements_rejected == looped.measurements_rejected
+    np.testing.assert_array_equal(compiled.pose_mean, looped.pose_mean)
+    np.testing.assert_array_equal(compiled.pose_best, looped.pose_best)
+    np.testing.assert_array_equal(compiled.ess, looped.ess)
+    np.testing.assert_array_equal(compiled.particles.mu, looped.particles.mu)
+    np.testing.assert_array_equal(compiled.particles.logw, looped.particles.logw)
