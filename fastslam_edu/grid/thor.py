@@ -476,8 +476,7 @@ def planar_laser_log(
 
     Parameters
     ----------
-    lidar : ThorLidar
-        From :func:`fastslam_edu.datasets.laser.read_thor_lidar`.
+    lidar : ThorLidar (:func:`fastslam_edu.datasets.laser.read_thor_lidar`)
     t_joints, neck, head : array_like, shape (n,)
         The joint log (:func:`fastslam_edu.datasets.laser.read_thor_joints`).
     max_gap : float
@@ -497,31 +496,10 @@ def planar_laser_log(
         per fate (``total``, ``out_of_range``, ``floor``, ``outside_band``,
         ``kept``, ``planar_beams``).
     """
-    if not isinstance(lidar, ThorLidar):
-        raise ValueError(f"planar_laser_log: lidar must be a ThorLidar, got {type(lidar).__name__}")
-    z_min, z_max = (float(v) for v in band)
-    if not (math.isfinite(z_min) and math.isfinite(z_max) and z_min < z_max):
-        raise ValueError(f"planar_laser_log: band must be two finite heights z_min < z_max, got {band}")
-    if not (math.isfinite(bearing_step) and 0 < bearing_step <= math.pi):
-        raise ValueError(f"planar_laser_log: bearing_step must lie in (0, π], got {bearing_step}")
-    n = len(lidar)
-    neck_k, head_k = joints_at(lidar.t, t_joints, neck, head, max_gap=max_gap)
-    valid = lidar.valid()
-    r_safe = np.where(valid, lidar.ranges, 0.0)  # invalid beams: a harmless finite stand-in, dropped below
-    p = lidar_points_world(r_safe, lidar.angles, neck_k, head_k, np.zeros((n, 3)))  # (N, B, 3)
-    z = np.where(valid, p[..., 2], np.nan)
-    kept = filter_returns(np.where(valid, lidar.ranges, np.nan), z, min_range=lidar.min_range,
-                          max_range=lidar.max_range, z_floor=z_floor)
-    in_band = kept.keep.copy()
-    in_band[in_band] = (z[in_band] >= z_min) & (z[in_band] <= z_max)
-    rho = np.hypot(p[..., 0], p[..., 1])
-    centres, idx = _bearing_bins(np.arctan2(p[..., 1], p[..., 0]), bearing_step)
-    b = centres.size
-    flat = np.full(n * b, np.inf)
-    rows = np.broadcast_to(np.arange(n)[:, None], idx.shape)
-    np.minimum.at(flat, (rows * b + idx)[in_band], rho[in_band])  # nearest point per (scan, bearing)
-    ranges = flat.reshape(n, b)
-    ranges[~np.isfinite(ranges)] = np.nan
+    z_min, z_max = _check_planar(lidar, band, bearing_step)
+    p, kept, in_band = _returns_in_band(lidar, joints_at(lidar.t, t_joints, neck, head, max_gap=max_gap),
+                                        (z_min, z_max), z_floor)
+    centres, ranges = _nearest_per_bearing(p, in_band, bearing_step)
     odo = lidar.odometry_poses()
     counts = {
         "total": kept.n_total, "out_of_range": kept.n_out_of_range, "floor": kept.n_floor,
@@ -533,3 +511,45 @@ def planar_laser_log(
     return LaserLog(t=np.asarray(lidar.t, dtype=float), ranges=ranges, angles=centres, poses=odo, odometry=odo.copy(),
                     source=lidar.source or "THOR LiDAR log", max_range=float(lidar.max_range), params=params,
                     counts=counts)
+
+
+def _check_planar(lidar, band, bearing_step) -> tuple[float, float]:
+    """The arguments of :func:`planar_laser_log`, checked; returns ``(z_min, z_max)``."""
+    if not isinstance(lidar, ThorLidar):
+        raise ValueError(f"planar_laser_log: lidar must be a ThorLidar, got {type(lidar).__name__}")
+    z_min, z_max = (float(v) for v in band)
+    if not (math.isfinite(z_min) and math.isfinite(z_max) and z_min < z_max):
+        raise ValueError(f"planar_laser_log: band must be two finite heights z_min < z_max, got {band}")
+    if not (math.isfinite(bearing_step) and 0 < bearing_step <= math.pi):
+        raise ValueError(f"planar_laser_log: bearing_step must lie in (0, π], got {bearing_step}")
+    return z_min, z_max
+
+
+def _returns_in_band(lidar: ThorLidar, head_joints, band, z_floor):
+    """Steps 2–3 of :func:`planar_laser_log`: the endpoints (N, B, 3) in the body frame on the floor,
+    :func:`filter_returns`' verdict, and which returns are kept within ``band``."""
+    n = len(lidar)
+    valid = lidar.valid()
+    r_safe = np.where(valid, lidar.ranges, 0.0)  # invalid beams: a harmless finite stand-in, dropped below
+    p = lidar_points_world(r_safe, lidar.angles, *head_joints, np.zeros((n, 3)))  # (N, B, 3)
+    z = np.where(valid, p[..., 2], np.nan)
+    kept = filter_returns(np.where(valid, lidar.ranges, np.nan), z, min_range=lidar.min_range,
+                          max_range=lidar.max_range, z_floor=z_floor)
+    in_band = kept.keep.copy()
+    in_band[in_band] = (z[in_band] >= band[0]) & (z[in_band] <= band[1])
+    return p, kept, in_band
+
+
+def _nearest_per_bearing(p, in_band, bearing_step: float):
+    """Step 4 of :func:`planar_laser_log`: the fixed bearings, and per scan and bearing the nearest kept
+    point's horizontal range (NaN where none)."""
+    n = p.shape[0]
+    rho = np.hypot(p[..., 0], p[..., 1])
+    centres, idx = _bearing_bins(np.arctan2(p[..., 1], p[..., 0]), bearing_step)
+    b = centres.size
+    flat = np.full(n * b, np.inf)
+    rows = np.broadcast_to(np.arange(n)[:, None], idx.shape)
+    np.minimum.at(flat, (rows * b + idx)[in_band], rho[in_band])  # nearest point per (scan, bearing)
+    ranges = flat.reshape(n, b)
+    ranges[~np.isfinite(ranges)] = np.nan
+    return centres, ranges
