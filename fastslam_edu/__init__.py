@@ -18,7 +18,8 @@ datasets        data in, data made (imports no evaluation code)
     thor_sim        a simulated THOR sequence driven by a real joint log
 
 landmark        landmark SLAM
-    fastslam_step   one FastSLAM 1.0 step per particle, as Probabilistic Robotics table 13.1 reads (numba)
+    fastslam_step   one FastSLAM 1.0 step per particle, as Probabilistic Robotics table 13.1 reads, and the
+                    run over a log, compiled (numba)
     fastslam        the particle set, resampling, combining, and the run over a log (hooks, gate, proposals)
     proposal        FastSLAM 2.0's proposal: the pose sampled given the sighting
     tree            Montemerlo's persistent balanced tree of landmark filters
@@ -30,6 +31,7 @@ grid            grid SLAM
     occupancy       log-odds occupancy grid, Bresenham and vectorised ray casting, map correlation
     gridslam        particle-filter SLAM with a grid (the THOR write-up's algorithm and variants), scan matching
     thor            THOR's LiDAR -> head -> body -> world geometry, floor filtering
+    thor_slam       grid SLAM on a THOR log: planar scans (floor filter on or off), maps and their scores
 
 evaluation      measuring results
     metrics         landmark and trajectory errors, SE(2) alignment
@@ -42,6 +44,9 @@ app             the application
     experiment      one MR.CLAM run end to end (load, audit, run, score)
     plotting        figures of a run
     cli             the ``fastslam-edu`` command
+    diagrams        the lecture figures: the factorisation, a particle, one filter step
+    course          the chapter map and the course paths
+    widgets         sliders on a figure (JupyterLab), the default figure in the static book
 """
 
 __version__ = "0.1.0"
