@@ -1,4 +1,4 @@
-"""Command line: ``fastslam-edu run ...`` (FastSLAM 1.0 on a MR.CLAM robot), ``fastslam-edu gridslam ...`` (grid SLAM on a 2D laser log).
+"""Command line: ``fastslam-edu run ...`` (FastSLAM 1.0, or EKF-SLAM with ``--filter ekf``, on a MR.CLAM robot), ``fastslam-edu gridslam ...`` (grid SLAM on a 2D laser log).
 
 Bad arguments or data give one clear line on stderr and exit status 2 (usage)
 or 1 (data), never a traceback.
@@ -48,10 +48,14 @@ class _OneLineParser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     parser = _OneLineParser(prog="fastslam-edu", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
-    run = sub.add_parser("run", help="FastSLAM 1.0 on one robot of a MR.CLAM dataset")
+    run = sub.add_parser("run", help="FastSLAM 1.0 (or EKF-SLAM) on one robot of a MR.CLAM dataset")
     run.add_argument("--data", required=True, type=Path, help="a MR.CLAM dataset folder (MRCLAM_DatasetN)")
     run.add_argument("--robot", required=True, type=_positive_int, help="robot subject number (1-5)")
-    run.add_argument("--particles", type=_positive_int, default=FastSLAMParams().n_particles, help="number of particles M")
+    run.add_argument("--filter", choices=FILTERS, default="fastslam",
+                     help="fastslam: FastSLAM 1.0 (default); ekf: EKF-SLAM, one Gaussian over pose and map, with the "
+                          "same noise model and gate (fastslam_edu.landmark.ekf_slam; deterministic)")
+    run.add_argument("--particles", type=_positive_int, default=None,
+                     help=f"number of particles M (default {FastSLAMParams().n_particles}; FastSLAM only)")
     run.add_argument("--seed", type=int, default=0, help="random seed (same seed, same numbers)")
     run.add_argument("--rate", choices=("full", "1hz"), default="full", help="full-rate events or the write-up's 1 Hz cleaning")
     run.add_argument("--groundtruth", type=Path, help="groundtruth file (.dat or 1 Hz .csv) to score against")
@@ -65,7 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--smooth", action="store_true",
                      help="also solve the whole log by least squares from the filter's result (fastslam_edu.landmark.smoother): "
                           "the best estimate under the same model; its figures go under 'smoother'")
-    run.add_argument("--resampler", choices=("systematic", "stratified", "residual", "roulette", "multinomial"), default="systematic")
+    run.add_argument("--resampler", choices=("systematic", "stratified", "residual", "roulette", "multinomial"), default=None,
+                     help=f"default {FastSLAMParams().resampler} (FastSLAM only)")
     run.add_argument("--no-audit", action="store_true", help="do not correct swapped landmark table entries")
     run.add_argument("--json", type=Path, help="write the figures, parameters and seed to this JSON file")
     run.add_argument("--plot", type=Path, help="write a figure (map, path, errors) to this PNG")
@@ -142,24 +147,101 @@ def _read_thor_planar(path: Path, joints: Path | None, what: str):
         raise ValueError(f"{what} {path} with --joints {joints}: {exc}") from None
 
 
+#: The filters of ``fastslam-edu run --filter``.
+FILTERS = ("fastslam", "ekf")
+
+#: The lines ``fastslam-edu run`` prints, in order.
+RUN_KEYS = ("path_rmse_m", "path_rmse_aligned_m", "path_max_m", "landmark_error_mean_m",
+            "landmark_error_aligned_mean_m", "steps", "measurements_used", "measurements_rejected", "filter_seconds")
+
+
+def _print_rows(rows) -> None:
+    width = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"{k:<{width}}  {'n/a' if v is None else (f'{v:.4f}' if isinstance(v, float) else v)}")
+
+
+def _check_ekf_options(args) -> None:
+    """Refuse the options of ``run`` that only FastSLAM has, with ``--filter ekf``."""
+    given = [name for name, used in (("--particles", args.particles is not None),
+                                     ("--resampler", args.resampler is not None),
+                                     ("--proposal", args.proposal != "motion"), ("--mode", args.mode != "slam"),
+                                     ("--smooth", args.smooth)) if used]
+    if given:
+        raise ValueError(f"{', '.join(given)}: FastSLAM's option(s), not EKF-SLAM's (--filter ekf)")
+
+
+def cmd_run_ekf(args) -> int:
+    """``fastslam-edu run --filter ekf``: EKF-SLAM on one robot, the same figures and JSON keys as FastSLAM's run."""
+    from fastslam_edu.app.experiment import run_mrclam_ekf
+
+    _check_ekf_options(args)
+    result, summary, ctx = run_mrclam_ekf(args.data, args.robot, rate=args.rate, x0=args.x0,
+                                          groundtruth_file=args.groundtruth, audit=not args.no_audit)
+    summary.update(filter="ekf", seed=args.seed)
+    for note in summary["notes"]:
+        print(f"note: {note}", file=sys.stderr)
+    _print_rows([(k, summary.get(k)) for k in RUN_KEYS])
+    if args.json:
+        args.json.write_text(json.dumps(summary, indent=2))
+    if args.plot:
+        _ekf_figure(result, ctx, f"{args.data.name} robot {args.robot}, EKF-SLAM").savefig(args.plot, dpi=120)
+    return 0
+
+
+def _ekf_figure(result, ctx, title: str):
+    """Map and path (left); position error and the 2σ the filter reports, over time (right)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from fastslam_edu.app.plotting import plot_map
+    from fastslam_edu.evaluation import metrics
+
+    log, dataset = ctx["log"], ctx["dataset"]
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 5), gridspec_kw={"width_ratios": [1.3, 1]})
+    plot_map(ax0, result, dataset.landmark_positions, log.groundtruth, title=title)
+    ax0.lines[0 if log.groundtruth is None else 1].set_label("EKF-SLAM (mean)")
+    ax0.legend(loc="best", fontsize=7)
+    t0 = result.t[0]
+    if log.groundtruth is not None:
+        gt = log.groundtruth
+        t_gt = gt["time"].to_numpy()
+        m = (result.t >= t_gt[0]) & (result.t <= t_gt[-1])
+        e = metrics.trajectory_errors(result.t[m], result.pose_mean[m], t_gt, gt[["x", "y", "theta"]].to_numpy())
+        ax1.plot(result.t[m] - t0, e["errors"], color="C0", lw=0.8, label="position error")
+    two_sigma = 2 * np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])
+    ax1.plot(result.update_t - t0, two_sigma, color="C3", lw=0.8, ls="--", label="2σ reported")
+    ax1.set(xlabel="time [s]", ylabel="[m]", title="position error and the filter's 2σ")
+    ax1.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
 def cmd_run(args) -> int:
     from fastslam_edu.app.experiment import run_mrclam
     from fastslam_edu.landmark.fastslam import ProgressBar
 
     if not args.data.is_dir():
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
+    if args.filter == "ekf":
+        return cmd_run_ekf(args)
     if args.smooth and args.mode != "slam":
         raise ValueError(f"--smooth solves full SLAM; it does not apply to --mode {args.mode}")
-    params = FastSLAMParams().replace(n_particles=args.particles, mode=args.mode, resampler=args.resampler,
-                         proposal=args.proposal)
+    defaults = FastSLAMParams()
+    args.particles = defaults.n_particles if args.particles is None else args.particles
+    params = defaults.replace(n_particles=args.particles, mode=args.mode,
+                              resampler=args.resampler or defaults.resampler, proposal=args.proposal)
     result, summary, ctx = run_mrclam(
         args.data, args.robot, params, args.seed, rate=args.rate, x0=args.x0,
         hooks=() if args.quiet else (ProgressBar(),), groundtruth_file=args.groundtruth, audit=not args.no_audit,
     )
+    summary["filter"] = "fastslam"
     for note in summary["notes"]:
         print(f"note: {note}", file=sys.stderr)
-    keys = ("path_rmse_m", "path_rmse_aligned_m", "path_max_m", "landmark_error_mean_m",
-            "landmark_error_aligned_mean_m", "steps", "measurements_used", "measurements_rejected", "filter_seconds")
+    keys = RUN_KEYS
     rows = [(k, summary.get(k)) for k in keys]
     if args.smooth:
         from fastslam_edu.app.experiment import summarize_smoother
@@ -167,9 +249,7 @@ def cmd_run(args) -> int:
 
         summary["smoother"] = summarize_smoother(smooth(ctx["stream"], params, initial=result), ctx["dataset"], ctx["log"])
         rows += [(f"smoother.{k}", summary["smoother"].get(k)) for k in keys[:5] + ("smoother_seconds",)]
-    width = max(len(k) for k, _ in rows)
-    for k, v in rows:
-        print(f"{k:<{width}}  {'n/a' if v is None else (f'{v:.4f}' if isinstance(v, float) else v)}")
+    _print_rows(rows)
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))
     if args.plot:

@@ -197,7 +197,7 @@ def draw_filter_step() -> Figure:
             color="0.3")
     _box(ax, (0, 8.3), "1. sample the motion\n" r"$x_t^{[m]} \sim p(x_t \mid x_{t-1}^{[m]}, u_t)$", width=4.2,
          height=1.05)
-    _diamond(ax, (0, 5.6), f"2. landmark $k$ known\nto the particle?")
+    _diamond(ax, (0, 5.6), "2. landmark $k$ known\nto the particle?")
     _box(ax, (-2.25, 3.95), "EKF update of $(\\mu_k, \\Sigma_k)$\n"
          r"$w^{[m]} \leftarrow w^{[m]}\,\mathcal{N}(\nu; 0, Q)$", width=3.7, height=1.05)
     _box(ax, (2.25, 3.95), "initialise $\\mu_k = h^{-1}(x, z)$\n"

@@ -26,6 +26,7 @@ from fastslam_edu.evaluation.audit import apply_landmark_audit
 from fastslam_edu.datasets.events import event_stream, groundtruth_at
 from fastslam_edu.datasets.log import Dataset, RobotLog
 from fastslam_edu.datasets.mrclam import groundtruth_files, read_dataset, read_groundtruth_csv, read_groundtruth_dat, robots_in
+from fastslam_edu.landmark.ekf_slam import EKFSLAMParams, EKFSLAMResult, run_ekf_slam
 from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, run_fastslam
 from fastslam_edu.landmark.initial_pose import initial_pose_from_landmarks
 from fastslam_edu.landmark.smoother import SmootherResult
@@ -186,6 +187,29 @@ def _skipped(log: RobotLog) -> dict:
             "subjects_without_groundtruth": {str(k): int(n) for k, n in d.get("subjects_without_groundtruth", {}).items()}}
 
 
+def prepare_run(path, robot: int, *, rate: str = "full", x0=None, **load_options):
+    """What every filter's run on a MR.CLAM robot starts from: ``(dataset, log, notes, stream)``.
+
+    :func:`load_mrclam` (audited table, ``load_options``), the notes on skipped sightings, the initial
+    pose (``x0``: a pose, ``"landmarks"``, or None for the groundtruth at the first step) and the event stream.
+    """
+    dataset, log, notes = load_mrclam(path, robot, **load_options)
+    notes += dropped_sightings_notes(log)
+    if isinstance(x0, str):
+        if x0 != "landmarks":
+            raise ValueError(f'x0 must be a pose (x, y, theta) or "landmarks", got {x0!r}')
+        start = initial_pose_from_landmarks(log, dataset.landmark_positions, dataset.landmark_subjects)
+        notes.append(start.describe())
+        x0 = start.x0
+    stream = event_stream(log, dataset.landmark_subjects, rate=rate, x0=x0)
+    if stream.x0 is None:
+        raise ValueError(
+            f"robot {robot} in {path} has no groundtruth to take the initial pose from; "
+            "pass --groundtruth FILE, or --x0 landmarks to find it from the surveyed landmarks"
+        )
+    return dataset, log, notes, stream
+
+
 def run_mrclam(
     path,
     robot: int,
@@ -209,20 +233,7 @@ def run_mrclam(
     Returns ``(result, summary, context)`` where ``context`` holds the dataset,
     the log, the event stream and the notes.
     """
-    dataset, log, notes = load_mrclam(path, robot, **load_options)
-    notes += dropped_sightings_notes(log)
-    if isinstance(x0, str):
-        if x0 != "landmarks":
-            raise ValueError(f'x0 must be a pose (x, y, theta) or "landmarks", got {x0!r}')
-        start = initial_pose_from_landmarks(log, dataset.landmark_positions, dataset.landmark_subjects)
-        notes.append(start.describe())
-        x0 = start.x0
-    stream = event_stream(log, dataset.landmark_subjects, rate=rate, x0=x0)
-    if stream.x0 is None:
-        raise ValueError(
-            f"robot {robot} in {path} has no groundtruth to take the initial pose from; "
-            "pass --groundtruth FILE, or --x0 landmarks to find it from the surveyed landmarks"
-        )
+    dataset, log, notes, stream = prepare_run(path, robot, rate=rate, x0=x0, **load_options)
     gt_fn = None
     if params.mode == "map":
         if log.groundtruth is None:
@@ -239,6 +250,43 @@ def run_mrclam(
     summary = summarize(result, dataset, log)
     summary.update(
         dataset=str(path), robot=robot, rate=rate, seed=seed, params=params.to_dict(), notes=notes,
+        x0=[float(v) for v in stream.x0], sightings_skipped=_skipped(log),
+    )
+    return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes}
+
+
+def summarize_ekf(result: EKFSLAMResult, dataset: Dataset, log: RobotLog) -> dict:
+    """The figures of an EKF-SLAM run (:mod:`fastslam_edu.landmark.ekf_slam`), with the keys of :func:`summarize`.
+
+    No resampling in an EKF: no ``resamples``. ``landmark_std_mean_m``: the mean over the
+    observed landmarks of :math:`\\sqrt{\\mathrm{tr}\\,\\Sigma_k}`, the standard deviation the filter reports.
+    """
+    out: dict = {
+        "steps": int(len(result.t)),
+        "measurements_used": result.measurements_used,
+        "measurements_rejected": result.measurements_rejected,
+        "filter_seconds": round(result.filter_seconds, 4),
+    }
+    out.update(score_estimate(result.t, result.pose_mean, result.landmarks_mean, result.observed,
+                              result.landmark_subjects, dataset, log))
+    sd = np.sqrt(np.trace(result.landmarks_cov[result.observed], axis1=1, axis2=2))
+    out["landmark_std_mean_m"] = float(sd.mean()) if sd.size else None
+    return out
+
+
+def run_mrclam_ekf(path, robot: int, params: EKFSLAMParams = EKFSLAMParams(), *, rate: str = "full", x0=None,
+                   **load_options):
+    """Load, run and score EKF-SLAM (known correspondences) on one robot of a MR.CLAM dataset.
+
+    As :func:`run_mrclam` (same loading, audit, initial pose and scores), with
+    :func:`fastslam_edu.landmark.ekf_slam.run_ekf_slam` as the filter. Deterministic: no seed.
+    Returns ``(result, summary, context)``.
+    """
+    dataset, log, notes, stream = prepare_run(path, robot, rate=rate, x0=x0, **load_options)
+    result = run_ekf_slam(stream, params)
+    summary = summarize_ekf(result, dataset, log)
+    summary.update(
+        dataset=str(path), robot=robot, rate=rate, params=params.to_dict(), notes=notes,
         x0=[float(v) for v in stream.x0], sightings_skipped=_skipped(log),
     )
     return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes}
