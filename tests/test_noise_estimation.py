@@ -446,3 +446,24 @@ def test_thresholds_are_strict():
     check = landmark_check(frame, np.array([[0.0, 0.0], [3.0, 0.0]]), [6, 7], max_offset=0.5)
     assert check["offset"].tolist() == [0.5, 0.6]
     assert check["suspect"].tolist() == [False, True]
+
+
+def test_residual_correlation_of_an_ar1_error():
+    """An AR(1) residual with coefficient φ, sampled every second: ρ(lag) = φ^lag (closed form); white noise: 0."""
+    from fastslam_edu.evaluation.noise_estimation import residual_correlation
+
+    rng = np.random.default_rng(0)
+    n, phi = 20000, 0.8
+    e = np.empty(n)
+    e[0] = rng.standard_normal()
+    for i in range(1, n):
+        e[i] = phi * e[i - 1] + np.sqrt(1 - phi**2) * rng.standard_normal()
+    frame = pd.DataFrame({"robot": 1, "subject": np.repeat([6, 7], n // 2), "time": np.tile(np.arange(n // 2.0), 2),
+                          "bearing_residual": e, "range_residual": rng.standard_normal(n)})
+    assert abs(residual_correlation(frame, 1.0, "bearing_residual") - phi) < 0.02
+    assert abs(residual_correlation(frame, 4.0, "bearing_residual") - phi**4) < 0.03
+    assert abs(residual_correlation(frame, 1.0, "range_residual")) < 0.03
+    with pytest.raises(ValueError, match="no column"):
+        residual_correlation(frame.drop(columns="subject"), 1.0, "bearing_residual")
+    with pytest.raises(ValueError, match="fewer than 3 pairs"):
+        residual_correlation(frame, 1e6, "bearing_residual")

@@ -380,6 +380,31 @@ def _checked_measurements(log: RobotLog, table: pd.DataFrame):
     return values, subject
 
 
+def residual_correlation(residuals: pd.DataFrame, lag: float, column: str, *, tolerance: float = 0.25) -> float:
+    """Correlation of a residual between two sightings of one landmark by one robot, ``lag`` seconds apart.
+
+    Every pair of sightings of the same ``(robot, subject)`` whose times differ
+    by ``lag ± tolerance`` seconds [s] gives one pair of residuals
+    (``column``, e.g. ``"bearing_residual"`` of :func:`measurement_residuals`);
+    the result is their Pearson correlation ρ. Independent errors give ρ ≈ 0;
+    an AR(1) error with correlation ρ at one step carries about
+    ``(1 − ρ)/(1 + ρ)`` of an independent reading's information per reading.
+    """
+    missing = [c for c in ("robot", "subject", "time", column) if c not in residuals.columns]
+    if missing:
+        raise ValueError(f"residual_correlation: the residual table has no column(s) {missing}")
+    first, second = [], []
+    for _, g in residuals.groupby(["robot", "subject"]):
+        t, v = g["time"].to_numpy(), g[column].to_numpy()
+        i, j = np.nonzero(np.abs(t[None, :] - t[:, None] - lag) < tolerance)
+        first.append(v[i])
+        second.append(v[j])
+    a, b = (np.concatenate(x) if x else np.zeros(0) for x in (first, second))
+    if a.size < 3:
+        raise ValueError(f"residual_correlation: fewer than 3 pairs of sightings {lag} ± {tolerance} s apart")
+    return float(np.corrcoef(a, b)[0, 1])
+
+
 def _residual_frame(residuals) -> pd.DataFrame:
     if isinstance(residuals, pd.DataFrame):
         frame = residuals
