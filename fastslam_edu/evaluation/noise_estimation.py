@@ -686,7 +686,8 @@ def relative_motion(start, end) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def odometry_increment_errors(log: RobotLog, window: float = 1.0, *, stride: float | None = None,
-                              max_gap: float = MAX_GAP, glitch_threshold: float = GLITCH_THRESHOLD) -> pd.DataFrame:
+                              max_gap: float = MAX_GAP, glitch_threshold: float = GLITCH_THRESHOLD,
+                              groundtruth: pd.DataFrame | None = None) -> pd.DataFrame:
     """Errors of the odometry's distance and turn over windows of ``τ`` seconds.
 
     Windows ``[a, a + τ]`` start at whole seconds ``a = ⌈t_first⌉ + k·stride``
@@ -712,6 +713,8 @@ def odometry_increment_errors(log: RobotLog, window: float = 1.0, *, stride: flo
         Seconds between window starts (whole, ≥ 1); default ``τ`` (windows do not overlap).
     max_gap, glitch_threshold
         As in :func:`measurement_residuals`.
+    groundtruth : DataFrame, optional
+        ``usable_groundtruth(log, glitch_threshold)`` when already computed (several windows of one log).
 
     Returns
     -------
@@ -724,7 +727,7 @@ def odometry_increment_errors(log: RobotLog, window: float = 1.0, *, stride: flo
     tau = _whole_seconds(window, "window")
     stride = tau if stride is None else _whole_seconds(stride, "stride")
     max_gap = _check_max_gap(max_gap)
-    gt = usable_groundtruth(log, glitch_threshold)
+    gt = usable_groundtruth(log, glitch_threshold) if groundtruth is None else groundtruth
     odo = log.odometry
     if len(odo) == 0:
         raise ValueError(f"robot {log.robot}: no odometry")
@@ -810,9 +813,11 @@ def increment_variances(logs, windows: Iterable[float] = WINDOWS, **kwargs) -> p
         ``bias_s``, ``bias_theta`` (median errors per second, [m/s], [rad/s]).
     """
     logs = _logs(logs)
+    truth = [usable_groundtruth(g, kwargs.get("glitch_threshold", GLITCH_THRESHOLD)) for g in logs]  # once per log
     rows = []
     for tau in windows:
-        e = pd.concat([odometry_increment_errors(g, tau, **kwargs) for g in logs], ignore_index=True)
+        e = pd.concat([odometry_increment_errors(g, tau, groundtruth=gt, **kwargs) for g, gt in zip(logs, truth)],
+                      ignore_index=True)
         vs = robust_std(e["ds_error"]) ** 2
         vt = robust_std(e["dtheta_error"]) ** 2
         tau = float(tau)
