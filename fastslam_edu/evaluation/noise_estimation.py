@@ -711,10 +711,8 @@ def odometry_increment_errors(log: RobotLog, window: float = 1.0, *, stride: flo
         ``τ`` [s], a positive whole number of seconds.
     stride : float, optional
         Seconds between window starts (whole, ≥ 1); default ``τ`` (windows do not overlap).
-    max_gap, glitch_threshold
-        As in :func:`measurement_residuals`.
-    groundtruth : DataFrame, optional
-        ``usable_groundtruth(log, glitch_threshold)`` when already computed (several windows of one log).
+    max_gap, glitch_threshold : as in :func:`measurement_residuals`.
+    groundtruth : ``usable_groundtruth(log, glitch_threshold)``, if already computed.
 
     Returns
     -------
