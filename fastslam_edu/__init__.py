@@ -24,7 +24,7 @@ landmark        landmark SLAM
     proposal        FastSLAM 2.0's proposal: the pose sampled given the sighting
     tree            Montemerlo's persistent balanced tree of landmark filters
     fastslam_tree   the filter with tree-backed maps (O(M log K) resampling)
-    ekf_slam        EKF-SLAM with known correspondences: the joint Gaussian over pose and map (the baseline)
+    ekf_slam        EKF-SLAM: the joint Gaussian over pose and map (the baseline); barcodes known or not
     smoother        least squares over the whole log: the most probable path and map under the same model
     initial_pose    the start pose from the first sightings of surveyed landmarks (robots without groundtruth)
 

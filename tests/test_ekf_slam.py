@@ -7,7 +7,10 @@
 * a simulated run with known truth: small landmark errors, and the NEES of the whole final map inside the χ²
   interval — while the same map with its covariance divided by 3 is outside it (the test can fail);
 * Σ symmetric and positive semi-definite after a run; the gate rejects an outlier; same input, same numbers;
-* bad input gives clear errors; ``fastslam-edu run --filter ekf`` writes FastSLAM's JSON keys.
+* bad input gives clear errors; ``fastslam-edu run --filter ekf`` writes FastSLAM's JSON keys;
+* unknown correspondences (table 10.2): the distances against the dense update's, a new landmark exactly when
+  every distance exceeds the threshold, a near-duplicate pair split by mutual exclusion, the scoring, correct
+  association in simulation (and a too-small threshold caught), the same numbers with and without barcodes.
 """
 
 from __future__ import annotations
@@ -27,10 +30,11 @@ from fastslam_edu.core.motion import MotionNoise, advance, propagate
 from fastslam_edu.datasets.events import event_stream
 from fastslam_edu.datasets.sim import SimConfig, simulate_dataset
 from fastslam_edu.evaluation.consistency import nees, simulator_params
-from fastslam_edu.landmark.ekf_slam import (EKFSLAMParams, EKFSLAMState, add_landmark, correlation_matrix,
+from fastslam_edu.landmark.ekf_slam import (NEW, SET_ASIDE, EKFSLAMParams, EKFSLAMState, add_landmark,
+                                            add_new_landmark, associate, association_distances, correlation_matrix,
                                             full_measurement_jacobian, jacobian_inverse_pose, landmark_slice,
                                             measurement_jacobian, motion_jacobian, motion_noise_covariance, predict,
-                                            predict_segment, run_ekf_slam, update)
+                                            predict_segment, run_ekf_slam, score_association, update)
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 
 CONTROL = MotionNoise(mode="control", sigma_v=0.02, sigma_omega=0.05)
@@ -385,3 +389,135 @@ def test_command_line_filter_ekf_writes_fastslams_keys(tmp_path, capsys):
     capsys.readouterr()
     assert main(args + ["--filter", "ekf", "--particles", "50"]) == 1
     assert "--particles" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- unknown correspondences (table 10.2)
+
+
+def test_association_distances_are_the_updates_mahalanobis_distances():
+    """d² of every map landmark at once equals νᵀQ⁻¹ν with Q = H_t Σ H_tᵀ + R from the dense Jacobian."""
+    state = joint_state(11, n_landmarks=5, seen=(0, 2, 3))
+    z = np.array([3.0, 0.4])
+    d2 = association_distances(state, z, R)
+    assert np.isinf(d2[[1, 4]]).all()  # not seen: never chosen
+    for k in (0, 2, 3):
+        Ht = full_measurement_jacobian(state, k)
+        nu = innovation(z, range_bearing(state.mu[:3], state.mu[landmark_slice(k)]))
+        Q = Ht @ state.sigma @ Ht.T + R
+        assert d2[k] == pytest.approx(float(nu @ np.linalg.solve(Q, nu)), rel=1e-10)
+
+
+def test_a_new_landmark_when_every_distance_exceeds_the_threshold():
+    state = EKFSLAMState.initial(0, [0.4, -0.3, 2.9])
+    for m in ([2.0, 1.0], [-1.0, 2.0], [-2.0, -2.0]):
+        add_new_landmark(state, range_bearing(state.mu[:3], np.array(m)), R)
+    near = range_bearing(state.mu[:3], state.mu[landmark_slice(1)]) + np.array([0.05, 0.0])
+    d2 = association_distances(state, near, R)
+    assert int(np.argmin(d2)) == 1 and d2.min() < 1.0
+    assert int(associate(d2[None], 9.0)[0]) == 1
+    far = near + np.array([0.0, 0.6])  # 0.6 rad off: far from every landmark
+    d2_far = association_distances(state, far, R)
+    assert d2_far.min() > 20.0
+    alpha = d2_far.min()
+    assert int(associate(d2_far[None], alpha * 0.999)[0]) == NEW  # every distance above the threshold: new
+    assert int(associate(d2_far[None], alpha * 1.001)[0]) == int(np.argmin(d2_far))  # one below: associated
+    # between the gate and the new-landmark threshold: set aside (neither updated nor new)
+    assert int(associate(d2_far[None], alpha * 2, gate_chi2=alpha / 2)[0]) == SET_ASIDE
+    # the state grows by one landmark, initialised from the sighting
+    k = add_new_landmark(state, far, R)
+    assert k == 3 and state.n_landmarks == 4 and state.mu.shape == (11,) and state.sigma.shape == (11, 11)
+    np.testing.assert_allclose(state.mu[landmark_slice(k)], landmark_from_measurement(state.mu[:3], far))
+    assert association_distances(state, far, R)[k] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_near_duplicate_pair_is_split_only_with_mutual_exclusion():
+    """Two landmarks 0.15 m apart, both sighted in one instant, both sightings nearest the first one."""
+    state = EKFSLAMState.initial(0, [0.0, 0.0, 0.0])
+    for m in ([3.0, 0.0], [3.0, 0.15]):
+        add_new_landmark(state, range_bearing(state.mu[:3], np.array(m)), R * 0.01)
+    z = np.array([range_bearing(state.mu[:3], np.array([3.0, 0.01])), range_bearing(state.mu[:3], np.array([3.0, 0.05]))])
+    d2 = np.stack([association_distances(state, zi, R) for zi in z])
+    assert (d2.argmin(axis=1) == 0).all()  # nearest neighbour alone: both to landmark 0 (a merge)
+    np.testing.assert_array_equal(associate(d2, 25.0, mutual_exclusion=False), [0, 0])
+    np.testing.assert_array_equal(associate(d2, 25.0, mutual_exclusion=True), [0, 1])  # the cheaper split
+    # if landmark 1 is out of reach, the second sighting is set aside: not merged into 0, and not new (d² to 0 <= α)
+    far = np.stack([association_distances(state, zi, R) for zi in z])
+    far[:, 1] = 100.0
+    np.testing.assert_array_equal(associate(far, 25.0, mutual_exclusion=True), [0, SET_ASIDE])  # d²(0) <= 25
+
+
+def test_score_association_matches_map_to_truth_and_counts_spurious():
+    # map landmark 0 = truth 1 (3 sightings, one of truth 0: a merge), map 1 = truth 0, map 2 spurious
+    sighting_map = np.array([0, 0, 0, 1, 1, 2, -2, 0])
+    truth = np.array([1, 1, 0, 0, 0, 0, 1, 1])
+    s = score_association(sighting_map, truth, n_map=3, n_true=3)
+    np.testing.assert_array_equal(s.map_subject, [1, 0, -1])
+    np.testing.assert_array_equal(s.map_landmark, [1, 0, -1])
+    np.testing.assert_array_equal(s.correct, [1, 1, 0, 1, 1, 0, 0, 1])
+    assert s.accuracy == pytest.approx(5 / 8) and (s.landmarks_in_map, s.landmarks_spurious) == (3, 1)
+
+
+@pytest.fixture(scope="module")
+def unknown_runs(runs):
+    out = []
+    for seed, (data, stream, known) in enumerate(runs[:4]):
+        params = simulator_params(SimConfig(duration=60.0))
+        out.append((data, stream, known, run_ekf_slam(stream, params, correspondences="unknown")))
+    return out
+
+
+def test_unknown_correspondences_associate_correctly_in_simulation(unknown_runs):
+    for data, stream, _, result in unknown_runs:
+        a = result.association
+        assert result.correspondences == "unknown" and a.accuracy > 0.99, a.accuracy
+        assert a.landmarks_spurious == 0 and a.landmarks_in_map == result.observed.sum() >= 8
+        err = np.hypot(*(result.landmarks_mean - data.landmark_positions)[result.observed].T)
+        assert err.mean() < 0.1
+    # the test can fail: a threshold far too small splits landmarks into spurious copies
+    data, stream, _, _ = unknown_runs[0]
+    eager = run_ekf_slam(stream, EKFSLAMParams.from_fastslam(simulator_params(SimConfig(duration=60.0))).replace(
+        correspondences="unknown", new_landmark_chi2=0.05))
+    assert eager.association.landmarks_spurious > 5 and eager.association.accuracy < 0.9
+
+
+def test_without_barcodes_same_numbers_when_association_is_unambiguous(unknown_runs):
+    for data, stream, known, unknown in unknown_runs:
+        assert unknown.association.accuracy == 1.0
+        np.testing.assert_array_equal(unknown.association.map_subject[unknown.sighting_map], stream.landmark)
+        np.testing.assert_array_equal(known.sighting_map, stream.landmark)
+        np.testing.assert_array_equal(unknown.observed, known.observed)
+        np.testing.assert_allclose(unknown.pose_mean, known.pose_mean, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(unknown.landmarks_mean[known.observed], known.landmarks_mean[known.observed],
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(unknown.landmarks_cov[known.observed], known.landmarks_cov[known.observed],
+                                   rtol=0, atol=1e-15)
+
+
+def test_known_correspondences_ignore_the_association_settings(runs):
+    data, stream, first = runs[0]
+    params = EKFSLAMParams.from_fastslam(simulator_params(SimConfig(duration=60.0)))
+    other = run_ekf_slam(stream, params.replace(new_landmark_chi2=1.0, mutual_exclusion=False))
+    np.testing.assert_array_equal(first.cov, other.cov)
+    assert first.correspondences == "known" and first.association is None
+
+
+def test_association_settings_are_checked():
+    for bad in ({"correspondences": "maybe"}, {"new_landmark_chi2": 0.0}, {"new_landmark_chi2": float("nan")},
+                {"mutual_exclusion": "yes"}, {"new_landmark_max_range": -1.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            EKFSLAMParams(**bad)
+    data = simulate_dataset(2, duration=5.0)
+    with pytest.raises(ValueError, match="correspondences"):
+        run_ekf_slam(event_stream(data.robots[1], data.landmark_subjects), correspondences="barcodes")
+
+
+def test_new_landmark_max_range_sets_far_first_sightings_aside(unknown_runs):
+    data, stream, _, free = unknown_runs[0]
+    params = EKFSLAMParams.from_fastslam(simulator_params(SimConfig(duration=60.0)))
+    limit = float(np.median(stream.z[:, 0]))
+    near = run_ekf_slam(stream, params.replace(correspondences="unknown", new_landmark_max_range=limit))
+    born = [np.flatnonzero(near.sighting_map == m)[0] for m in range(near.association.landmarks_in_map)]
+    assert (stream.z[born, 0] <= limit).all() and not (stream.z[[np.flatnonzero(free.sighting_map == m)[0] for m in
+                                                                 range(free.association.landmarks_in_map)], 0]
+                                                      <= limit).all()
+    assert near.measurements_rejected > free.measurements_rejected == 0

@@ -1,6 +1,7 @@
-"""EKF-SLAM with known correspondences: one Gaussian over the pose and the whole map.
+"""EKF-SLAM with known or unknown correspondences: one Gaussian over the pose and the whole map.
 
-The baseline FastSLAM was designed to beat (*Probabilistic Robotics*, table 10.1).
+The baseline FastSLAM was designed to beat (*Probabilistic Robotics*, table 10.1; with
+unknown correspondences, table 10.2: see "Unknown correspondences" below).
 The state is the pose and all :math:`K` landmarks stacked,
 
 .. math::
@@ -55,6 +56,21 @@ The filter, for each step of an event stream
    escape of FastSLAM's :class:`~fastslam_edu.landmark.fastslam.Gate` (after
    ``gate_escape_s`` seconds of rejections of one landmark, its sightings are applied).
 
+**Unknown correspondences** (``correspondences="unknown"``, table 10.2): the filter never
+reads ``stream.landmark``. The map grows one landmark at a time (the state's size is
+:math:`3 + 2N_t`, :math:`N_t` the landmarks made so far). For each sighting the squared
+Mahalanobis distance :math:`d_k^2 = \\nu_k^\\top Q_k^{-1}\\nu_k` to every map landmark is computed
+(:func:`association_distances`); the nearest one (smallest :math:`d^2`) is updated as above if
+:math:`d^2 \\le \\min(` ``gate_chi2``, ``new_landmark_chi2`` :math:`)`; if :math:`d^2 >`
+``new_landmark_chi2`` for *every* map landmark the sighting starts a new landmark; in between it is
+set aside (too far to update, too near to be new). With ``mutual_exclusion`` the sightings of one
+instant are associated jointly (:func:`associate`, an assignment problem): two sightings of one
+instant never go to the same map landmark. The gate's escape does not apply (a sighting far from
+everything makes a new landmark instead). The barcodes are used only after the run, to score
+(:func:`score_association`): map landmarks are matched one-to-one to the surveyed ones with
+:func:`scipy.optimize.linear_sum_assignment` (maximising the sightings they share); unmatched map
+landmarks are *spurious*.
+
 The noise settings are FastSLAM's (:class:`EKFSLAMParams`, defaults taken from
 :class:`~fastslam_edu.landmark.fastslam.FastSLAMParams`), so that the two filters
 are compared on the same model. The filter is deterministic: no random numbers.
@@ -94,11 +110,25 @@ __all__ = [
     "subtract_symmetric_product",
     "update",
     "correlation_matrix",
+    "association_distances",
+    "associate",
+    "add_new_landmark",
+    "AssociationScore",
+    "score_association",
     "run_ekf_slam",
 ]
 
 #: What :func:`update` did with a sighting.
 INITIALISED, UPDATED, REJECTED = "initialised", "updated", "rejected"
+
+#: :func:`associate`'s codes for a sighting that starts a new landmark, and one set aside.
+NEW, SET_ASIDE = -1, -2
+
+#: Default ``new_landmark_chi2``: a sighting starts a new landmark when its squared Mahalanobis distance to
+#: every map landmark exceeds this (χ² with 2 degrees of freedom: a tail of 2.5e-8). Above the gate (27.6), so a
+#: sighting between the two is set aside. Chosen for the mean association accuracy over MR.CLAM Dataset 1 robot 2
+#: and Dataset 6 robots 1–5 (9.2 … 60 tried, one value for all robots); the differences near it are small.
+NEW_LANDMARK_CHI2 = 35.0
 
 
 def _fastslam_default(name: str):
@@ -125,6 +155,18 @@ class EKFSLAMParams(Params):
         (:class:`fastslam_edu.landmark.fastslam.Gate`); None: never.
     odometry_scale : (float, float)
         The filter moves with :math:`(k_v v, k_\\omega \\omega)`.
+    correspondences : "known" or "unknown"
+        "known": ``stream.landmark`` says which landmark each sighting sees (table 10.1). "unknown":
+        the filter associates by Mahalanobis nearest neighbour (table 10.2) and never reads it.
+    new_landmark_chi2 : float
+        Unknown correspondences: a sighting whose :math:`d^2` to every map landmark exceeds this
+        starts a new landmark (table 10.2's :math:`\\alpha`).
+    mutual_exclusion : bool
+        Unknown correspondences: the sightings of one instant go to distinct map landmarks.
+    new_landmark_max_range : float or None
+        Unknown correspondences: a sighting farther than this [m] never starts a landmark (it is set
+        aside: far sightings place a landmark too loosely to tell it from its neighbours); None: no limit
+        (the default: limits of 2.5 m and 4 m lowered the association accuracy on MR.CLAM).
 
     FastSLAM's tempering (``measurement_correlation_s``) acts on particle weights, which
     EKF-SLAM does not have; its particle and resampling settings do not apply either.
@@ -136,6 +178,10 @@ class EKFSLAMParams(Params):
     gate_chi2: float | None = field(default_factory=_fastslam_default("gate_chi2"))
     gate_escape_s: float | None = field(default_factory=_fastslam_default("gate_escape_s"))
     odometry_scale: tuple[float, float] = field(default_factory=_fastslam_default("odometry_scale"))
+    correspondences: str = "known"
+    new_landmark_chi2: float = NEW_LANDMARK_CHI2
+    mutual_exclusion: bool = True
+    new_landmark_max_range: float | None = None
 
     def __post_init__(self):
         # FastSLAMParams checks the shared fields, with the same messages
@@ -144,6 +190,18 @@ class EKFSLAMParams(Params):
         scale = np.asarray(self.odometry_scale, dtype=float)
         if scale.shape != (2,) or not np.isfinite(scale).all():
             raise ValueError(f"odometry_scale must be two finite numbers (k_v, k_omega), got {self.odometry_scale!r}")
+        if self.correspondences not in ("known", "unknown"):
+            raise ValueError(f'correspondences must be "known" or "unknown", got {self.correspondences!r}')
+        a = self.new_landmark_chi2
+        if isinstance(a, bool) or not isinstance(a, (int, float, np.integer, np.floating)) or not np.isfinite(a) \
+                or a <= 0:
+            raise ValueError(f"new_landmark_chi2 must be a finite number > 0, got {a!r}")
+        r = self.new_landmark_max_range
+        if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float, np.integer, np.floating))
+                              or not np.isfinite(r) or r <= 0):
+            raise ValueError(f"new_landmark_max_range must be a finite number > 0 or None, got {r!r}")
+        if not isinstance(self.mutual_exclusion, (bool, np.bool_)):
+            raise ValueError(f"mutual_exclusion must be True or False, got {self.mutual_exclusion!r}")
 
     @classmethod
     def from_fastslam(cls, params: FastSLAMParams) -> "EKFSLAMParams":
@@ -491,6 +549,138 @@ def correlation_matrix(sigma) -> np.ndarray:
     return rho
 
 
+# ---------------------------------------------------------------- 5. unknown correspondences (table 10.2)
+
+
+def association_distances(state: EKFSLAMState, z, R) -> np.ndarray:
+    """Squared Mahalanobis distances :math:`d_k^2 = \\nu_k^\\top Q_k^{-1}\\nu_k` of sighting ``z`` (2,) to every map landmark.
+
+    :math:`\\nu_k = z \\ominus h(\\mu_x, \\mu_k)` and :math:`Q_k = H_t^k \\Sigma H_t^{k\\top} + R` as in
+    :func:`update`, for all seen landmarks at once (only the pose's and landmark :math:`k`'s blocks of
+    :math:`\\Sigma` enter: :math:`O(K)`). Returns (K,); ``inf`` for landmarks not seen (and for one the
+    robot stands on).
+    """
+    z = finite_array("z", z, "association_distances", (2,)).reshape(2)
+    R = finite_array("R", R, "association_distances", (2, 2)).reshape(2, 2)
+    K = state.n_landmarks
+    d2 = np.full(K, np.inf)
+    idx = np.flatnonzero(state.seen)
+    if idx.size == 0:
+        return d2
+    x = state.mu[:3]
+    m = state.mu[3:].reshape(K, 2)[idx]
+    dx, dy = m[:, 0] - x[0], m[:, 1] - x[1]
+    q = dx * dx + dy * dy
+    ok = q > 0
+    idx, dx, dy, q = idx[ok], dx[ok], dy[ok], q[ok]
+    r = np.sqrt(q)
+    zero, one = np.zeros_like(r), np.ones_like(r)
+    # J = [G_x | H] (n, 2, 5): the pose's columns, then the landmark's (H = -G_x[:, :2])
+    J = np.stack((np.stack((-dx / r, -dy / r, zero, dx / r, dy / r), axis=-1),
+                  np.stack((dy / q, -dx / q, -one, -dy / q, dx / q), axis=-1)), axis=-2)
+    rows = np.concatenate((np.broadcast_to([0, 1, 2], (len(idx), 3)),
+                           np.stack((3 + 2 * idx, 4 + 2 * idx), axis=-1)), axis=1)  # (n, 5)
+    S = state.sigma[rows[:, :, None], rows[:, None, :]]  # (n, 5, 5)
+    Q = J @ S @ np.swapaxes(J, -1, -2) + R
+    nu = np.stack((z[0] - r, wrap_angle(z[1] - (np.arctan2(dy, dx) - x[2]))), axis=-1)
+    d2[idx] = np.einsum("ni,ni->n", nu, np.linalg.solve(Q, nu[..., None])[..., 0])
+    return d2
+
+
+def associate(d2: np.ndarray, new_landmark_chi2: float, gate_chi2: float | None = None,
+              mutual_exclusion: bool = True) -> np.ndarray:
+    """Table 10.2's choice for each sighting of one instant, from their distances ``d2`` (n, K).
+
+    For each sighting: the map landmark ``k`` it updates (>= 0), :data:`NEW` (-1: its :math:`d^2` to
+    every map landmark exceeds ``new_landmark_chi2``) or :data:`SET_ASIDE` (-2: no landmark within
+    :math:`\\min(` ``gate_chi2``, ``new_landmark_chi2`` :math:`)`, but one within ``new_landmark_chi2``).
+    Without ``mutual_exclusion``: the nearest landmark of each sighting. With it: the assignment of
+    sightings to distinct landmarks (or "new") that minimises the summed :math:`d^2`, a new landmark
+    costing ``new_landmark_chi2`` (:func:`scipy.optimize.linear_sum_assignment`). Returns (n,) int.
+    """
+    d2 = np.atleast_2d(np.asarray(d2, dtype=float))
+    n, K = d2.shape
+    limit = new_landmark_chi2 if gate_chi2 is None else min(gate_chi2, new_landmark_chi2)
+    nearest = d2.min(axis=1) if K else np.full(n, np.inf)
+    out = np.where(nearest > new_landmark_chi2, NEW, SET_ASIDE)
+    if not mutual_exclusion or n == 1:
+        k = d2.argmin(axis=1) if K else np.zeros(n, dtype=int)
+        return np.where(nearest <= limit, k, out)
+    from scipy.optimize import linear_sum_assignment
+
+    big = 1e6 * (new_landmark_chi2 + 1.0)
+    cost = np.full((n, K + n), big)
+    cost[:, :K] = np.where(d2 <= limit, d2, big)
+    cost[np.arange(n), K + np.arange(n)] = new_landmark_chi2  # sighting i's own "new landmark" slot
+    rows, cols = linear_sum_assignment(cost)
+    for i, c in zip(rows, cols):
+        if c < K and cost[i, c] < big:
+            out[i] = c
+    return out
+
+
+def add_new_landmark(state: EKFSLAMState, z, R) -> int:
+    """Grow the state by one landmark (two rows and columns) and initialise it from ``z`` (:func:`add_landmark`).
+
+    Returns its index. The copy costs :math:`O(K^2)`, paid once per landmark.
+    """
+    K = state.n_landmarks
+    n = len(state.mu)
+    mu, sigma = np.zeros(n + 2), np.zeros((n + 2, n + 2))
+    mu[:n], sigma[:n, :n] = state.mu, state.sigma
+    state.mu, state.sigma, state.seen = mu, sigma, np.append(state.seen, False)
+    add_landmark(state, z, K, R)
+    return K
+
+
+@dataclass
+class AssociationScore:
+    """How a run's associations compare with the true landmarks (:func:`score_association`).
+
+    Attributes
+    ----------
+    map_subject : (N,) int, the surveyed landmark index matched to each map landmark, -1 if none (spurious)
+    map_landmark : (K,) int, the map landmark matched to each surveyed landmark, -1 if none
+    correct : (n,) bool, sighting ``j``'s map landmark is matched to its true landmark
+    accuracy : float, ``correct.mean()`` (sightings set aside count as wrong)
+    landmarks_in_map, landmarks_spurious : int, map landmarks made, and those matched to no surveyed one
+    """
+
+    map_subject: np.ndarray
+    map_landmark: np.ndarray
+    correct: np.ndarray
+    accuracy: float
+    landmarks_in_map: int
+    landmarks_spurious: int
+
+
+def score_association(sighting_map, truth, n_map: int, n_true: int) -> AssociationScore:
+    """Score associations against the truth, after matching map landmarks to true ones.
+
+    ``sighting_map`` (n,): the map landmark each sighting went to (< 0: set aside); ``truth`` (n,): its
+    true landmark index (0 … ``n_true`` - 1). The matching is one-to-one and maximises the number of
+    sightings a map landmark and its true landmark share (:func:`scipy.optimize.linear_sum_assignment`
+    on the (``n_map``, ``n_true``) table of counts); a pair sharing no sighting is not a match.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    a = np.asarray(sighting_map, dtype=int).reshape(-1)
+    t = np.asarray(truth, dtype=int).reshape(-1)
+    if a.shape != t.shape:
+        raise ValueError(f"score_association: sighting_map {a.shape} and truth {t.shape} differ in length")
+    counts = np.zeros((n_map, n_true), dtype=np.int64)
+    used = a >= 0
+    np.add.at(counts, (a[used], t[used]), 1)
+    map_subject, map_landmark = np.full(n_map, -1), np.full(n_true, -1)
+    for i, k in zip(*linear_sum_assignment(counts, maximize=True)):
+        if counts[i, k] > 0:
+            map_subject[i], map_landmark[k] = k, i
+    correct = used & (map_subject[np.where(used, a, 0)] == t) if n_map else np.zeros(len(a), dtype=bool)
+    return AssociationScore(map_subject=map_subject, map_landmark=map_landmark, correct=correct,
+                            accuracy=float(correct.mean()) if len(a) else float("nan"), landmarks_in_map=int(n_map),
+                            landmarks_spurious=int((map_subject < 0).sum()))
+
+
 # ---------------------------------------------------------------- the run
 
 
@@ -508,6 +698,15 @@ class EKFSLAMResult:
     measurements_used, measurements_rejected : counts (initialisations count as used)
     filter_seconds : wall time of the filter loop
     params, landmark_subjects : the settings; the subject of each landmark index
+    correspondences : "known" or "unknown"
+    sighting_map : (n,) int, the map landmark each sighting of the stream updated or started (< 0: set aside)
+    map_mean, map_cov : (N, 2), (N, 2, 2) the filter's own map, in the order its landmarks were made
+    association : AssociationScore or None, unknown correspondences: the associations scored against the
+        stream's landmark identities (read only after the run)
+
+    With unknown correspondences, ``landmarks_mean``, ``landmarks_cov`` and ``observed`` are the map
+    landmarks matched to the surveyed ones (:func:`score_association`), in the surveyed order, so that the
+    scorers of known correspondences apply; ``mean`` and ``cov`` are the joint state in the map's order.
     """
 
     t: np.ndarray
@@ -524,6 +723,11 @@ class EKFSLAMResult:
     filter_seconds: float
     params: EKFSLAMParams
     landmark_subjects: np.ndarray
+    correspondences: str = "known"
+    sighting_map: np.ndarray | None = None
+    map_mean: np.ndarray | None = None
+    map_cov: np.ndarray | None = None
+    association: AssociationScore | None = None
 
 
 def _measurement_steps(stream: EventStream):
@@ -551,36 +755,47 @@ def _check_stream(stream: EventStream) -> None:
 
 
 def run_ekf_slam(stream: EventStream, params: EKFSLAMParams | FastSLAMParams = EKFSLAMParams(), *, x0=None,
-                 pose_cov0=None) -> EKFSLAMResult:
-    """Run EKF-SLAM with known correspondences over an event stream.
+                 pose_cov0=None, correspondences: str | None = None) -> EKFSLAMResult:
+    """Run EKF-SLAM over an event stream, with known (table 10.1) or unknown (table 10.2) correspondences.
 
     For each segment of steps ending at a measurement step: :func:`predict_segment`,
-    then :func:`update` for each sighting of the step in order, with
-    :math:`R` = ``params.measurement_covariance(z)`` and the gate.
+    then for each sighting of the step in order, with :math:`R` = ``params.measurement_covariance(z)``:
+
+    * known correspondences: :func:`update` of landmark ``stream.landmark[j]``, with the gate;
+    * unknown: :func:`associate` (the sightings of the step jointly if ``params.mutual_exclusion``,
+      on the distances before the step's updates; otherwise one by one, each after the previous
+      update), then :func:`update` of the chosen landmark or :func:`add_new_landmark`.
+      ``stream.landmark`` is read only after the run, by :func:`score_association`.
 
     Parameters
     ----------
     stream : EventStream
-        From :func:`fastslam_edu.datasets.events.event_stream`; ``stream.landmark`` are the correspondences.
+        From :func:`fastslam_edu.datasets.events.event_stream`; ``stream.landmark`` are the correspondences
+        (known) or the truth used only to score (unknown).
     params : EKFSLAMParams, or FastSLAMParams (its noise model and gate are used: :meth:`EKFSLAMParams.from_fastslam`)
     x0 : (3,) initial pose; default ``stream.x0``.
     pose_cov0 : (3, 3) its covariance; default 0.
+    correspondences : "known", "unknown" or None (default: ``params.correspondences``).
     """
     if isinstance(params, FastSLAMParams):
         params = EKFSLAMParams.from_fastslam(params)
     if not isinstance(params, EKFSLAMParams):
         raise ValueError(f"params must be EKFSLAMParams (or FastSLAMParams), got {type(params).__name__}")
+    if correspondences is not None:
+        params = params.replace(correspondences=correspondences)  # checks the value
+    unknown = params.correspondences == "unknown"
     _check_stream(stream)
     x0 = stream.x0 if x0 is None else x0
     if x0 is None:
         raise ValueError("no initial pose: the stream has no groundtruth; pass x0=(x, y, theta)")
-    state = EKFSLAMState.initial(stream.n_landmarks, x0, pose_cov0)
+    state = EKFSLAMState.initial(0 if unknown else stream.n_landmarks, x0, pose_cov0)
     u, dt = stream_commands(stream, params)
     z_all = np.asarray(stream.z, dtype=float)
     R_all = params.measurement_covariance(z_all)
     gate = Gate(params.gate_chi2, params.gate_escape_s, stream.n_landmarks)
     N = len(stream)
     pose_mean = np.empty((N, 3))
+    sighting_map = np.full(len(z_all), SET_ASIDE)
     update_t, pose_cov, counts = [], [], {INITIALISED: 0, UPDATED: 0, REJECTED: 0}
     t_start = time.perf_counter()
     for s, e, measured in _measurement_steps(stream):
@@ -588,20 +803,59 @@ def run_ekf_slam(stream: EventStream, params: EKFSLAMParams | FastSLAMParams = E
         if not measured:
             continue
         t = float(stream.t[e])
-        for j in range(stream.offsets[e], stream.offsets[e + 1]):
-            k = int(stream.landmark[j])
-            outcome = _update(state, z_all[j], k, R_all[j], gate.chi2, bool(gate.escaped(t, [k])[0]))
-            gate.record(t, [k], [outcome != REJECTED])
-            counts[outcome] += 1
+        if unknown:
+            _associate_and_update(state, z_all, R_all, range(stream.offsets[e], stream.offsets[e + 1]), params,
+                                  sighting_map, counts)
+        else:
+            for j in range(stream.offsets[e], stream.offsets[e + 1]):
+                k = int(stream.landmark[j])
+                outcome = _update(state, z_all[j], k, R_all[j], gate.chi2, bool(gate.escaped(t, [k])[0]))
+                gate.record(t, [k], [outcome != REJECTED])
+                counts[outcome] += 1
+                if outcome != REJECTED:
+                    sighting_map[j] = k
         pose_mean[e] = state.mu[:3]
         update_t.append(t)
         pose_cov.append(state.sigma[:3, :3].copy())
     seconds = time.perf_counter() - t_start
-    mu, cov = state.landmarks()
+    map_mean, map_cov = state.landmarks()
+    mu, cov, observed, score = map_mean, map_cov, state.seen.copy(), None
+    if unknown:  # scoring only: the stream's identities are read from here on
+        score = score_association(sighting_map, stream.landmark, state.n_landmarks, stream.n_landmarks)
+        observed = score.map_landmark >= 0
+        mu, cov = np.full((stream.n_landmarks, 2), np.nan), np.full((stream.n_landmarks, 2, 2), np.nan)
+        mu[observed], cov[observed] = map_mean[score.map_landmark[observed]], map_cov[score.map_landmark[observed]]
     return EKFSLAMResult(
         t=np.asarray(stream.t, dtype=float), pose_mean=pose_mean, landmarks_mean=mu, landmarks_cov=cov,
-        observed=state.seen.copy(), mean=state.mu, cov=state.sigma, update_t=np.asarray(update_t),
+        observed=observed, mean=state.mu, cov=state.sigma, update_t=np.asarray(update_t),
         pose_cov=np.asarray(pose_cov).reshape(-1, 3, 3), measurements_used=counts[INITIALISED] + counts[UPDATED],
         measurements_rejected=counts[REJECTED], filter_seconds=seconds, params=params,
-        landmark_subjects=np.asarray(stream.landmark_subjects),
+        landmark_subjects=np.asarray(stream.landmark_subjects), correspondences=params.correspondences,
+        sighting_map=sighting_map, map_mean=map_mean, map_cov=map_cov, association=score,
     )
+
+
+def _associate_and_update(state: EKFSLAMState, z_all, R_all, rows, params: EKFSLAMParams, sighting_map, counts):
+    """Table 10.2 for the sightings ``rows`` of one instant (in place; fills ``sighting_map`` and ``counts``)."""
+    rows = list(rows)
+    joint = params.mutual_exclusion and len(rows) > 1
+    if joint:
+        d2 = np.stack([association_distances(state, z_all[j], R_all[j]) for j in rows])
+        choice = associate(d2, params.new_landmark_chi2, params.gate_chi2, True)
+    for i, j in enumerate(rows):
+        if joint:
+            c = int(choice[i])
+        else:
+            c = int(associate(association_distances(state, z_all[j], R_all[j])[None], params.new_landmark_chi2,
+                              params.gate_chi2, False)[0])
+        if c == NEW and params.new_landmark_max_range is not None and z_all[j, 0] > params.new_landmark_max_range:
+            c = SET_ASIDE
+        if c == NEW:
+            sighting_map[j] = add_new_landmark(state, z_all[j], R_all[j])
+            counts[INITIALISED] += 1
+        elif c == SET_ASIDE:
+            counts[REJECTED] += 1
+        else:
+            _update(state, z_all[j], c, R_all[j], None, True)
+            sighting_map[j] = c
+            counts[UPDATED] += 1
