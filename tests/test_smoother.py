@@ -19,6 +19,7 @@ from fastslam_edu.landmark.smoother import (
     SolverSettings,
     block_tridiagonal_inverse_diagonal,
     dead_reckoning,
+    lagged_commands,
     keyframe_steps,
     measurement_residuals,
     odometry_factors,
@@ -27,7 +28,8 @@ from fastslam_edu.landmark.smoother import (
     smooth,
     whitening,
 )
-from streams import simulate
+from streams import path_rmse, simulate
+from fastslam_edu.datasets.events import event_stream
 
 NOISE = MotionNoise(sigma_v=0.01, sigma_omega=0.02)
 
@@ -372,3 +374,86 @@ def test_converges_from_a_poor_dead_reckoning_start():
     result = smooth(stream, params)
     assert result.measurements_rejected == 0
     assert np.nanmean(landmark_errors_aligned(result.landmarks, data.landmark_positions, result.observed)) < 0.03
+
+
+def test_lagged_commands_shift_the_integral_of_the_commands():
+    """Piecewise-constant commands read τ later: each step's command is the mean over its window moved back by τ."""
+    t = np.arange(0.0, 3.01, 0.1)
+    u = np.zeros((len(t), 2))
+    u[(t > 1.0 + 1e-9) & (t <= 1.5 + 1e-9)] = [0.2, 0.4]  # in force over (1.0, 1.5]
+    stream = EventStream(t=t, dt=np.r_[0.0, np.diff(t)], u=u, offsets=np.zeros(len(t) + 1, dtype=np.int64),
+                         z=np.zeros((0, 2)), landmark=np.zeros(0, dtype=np.int64), landmark_subjects=np.arange(6, 8),
+                         x0=np.zeros(3))
+    lagged = lagged_commands(stream, 0.2)
+    expected = np.where(((t > 1.2 + 1e-9) & (t <= 1.7 + 1e-9))[:, None], [0.2, 0.4], 0.0)
+    np.testing.assert_allclose(lagged, expected, atol=1e-12)
+    half = lagged_commands(stream, 0.05)  # steps 11 and 16 hold half of the pulse each
+    np.testing.assert_allclose(half[[11, 16]], [[0.1, 0.2], [0.1, 0.2]], atol=1e-12)
+    for tau in (0.05, 0.25, -0.3):
+        np.testing.assert_allclose(np.sum(lagged_commands(stream, tau) * stream.dt[:, None], axis=0), [0.1, 0.2])
+    np.testing.assert_array_equal(lagged_commands(stream, 0.0), u)
+
+
+def _miscalibrated(seed, scale, lag, duration=90.0):
+    """A simulation whose recorded commands are ``1 / scale`` times the executed ones and ``lag`` seconds early: the robot
+    executes ``scale`` times what is logged, ``lag`` seconds after it is logged."""
+    data, log, stream = simulate(seed, duration=duration)
+    odometry = log.odometry.copy()
+    odometry["time"] -= lag
+    odometry["v"] /= scale[0]
+    odometry["omega"] /= scale[1]
+    bad = event_stream(dataclasses.replace(log, odometry=odometry), data.landmark_subjects)
+    return data, log, dataclasses.replace(bad, x0=stream.x0)
+
+
+@pytest.mark.parametrize("seed", [22, 26])
+def test_odometry_scale_and_lag_are_estimated_with_the_path(seed):
+    """Known truth: the robot moves at 0.92 × the logged speed, turns at 0.90 × the logged rate, 0.2 s late.
+    Estimated jointly (``calibrate_odometry``), the calibration comes back within a few of its own σ and
+    the path error drops several times; without it, the scale error bends the whole path."""
+    kv, kw, tau = 0.92, 0.90, 0.2
+    data, log, stream = _miscalibrated(seed, (kv, kw), tau)
+    plain = smooth(stream, _params())
+    fitted = smooth(stream, _params(), solver=SolverSettings(calibrate_odometry=True))
+    assert plain.odometry_calibration is None
+    c, sd = fitted.odometry_calibration, fitted.odometry_calibration_std
+    assert np.all(np.abs(c - [kv, kw, tau]) < [0.02, 0.02, 0.03]), c
+    assert np.all(sd > 0) and np.all(np.abs(c - [kv, kw, tau]) < 4 * sd)
+    e_plain, e_fitted = path_rmse(plain.t, plain.poses, log), path_rmse(fitted.t, fitted.poses, log)
+    assert e_fitted < 0.3 * e_plain
+    # and it is only the calibration: the log as recorded right gives the same path
+    _, _, right = simulate(seed, duration=90.0)
+    assert e_fitted < path_rmse(*(lambda r: (r.t, r.poses))(smooth(right, _params())), log) + 0.05
+
+
+def test_a_calibrated_log_is_left_calibrated():
+    """No scale error, no lag: the estimate stays at (1, 1, 0) within its σ, and the solution barely moves."""
+    data, log, stream = simulate(24, duration=90.0)
+    plain = smooth(stream, _params())
+    fitted = smooth(stream, _params(), solver=SolverSettings(calibrate_odometry=True))
+    c, sd = fitted.odometry_calibration, fitted.odometry_calibration_std
+    assert np.all(np.abs(c - [1.0, 1.0, 0.0]) < 4 * sd) and np.all(sd < [0.03, 0.03, 0.05])
+    assert abs(path_rmse(fitted.t, fitted.poses, log) - path_rmse(plain.t, plain.poses, log)) < 0.05
+
+
+def test_calibration_covariance_is_the_laplace_block(monkeypatch):
+    """With the calibration estimated, the landmarks' covariances and the calibration's σ are still the blocks of
+    (JᵀJ)⁻¹ (the calibration is three more variables after the landmarks)."""
+    import fastslam_edu.landmark.smoother as smoother
+
+    _, _, stream = _miscalibrated(25, (1.05, 1.1), 0.1, duration=30.0)
+    seen, laplace = {}, smoother._laplace
+
+    def spy(problem, v, active, with_poses=True):
+        J = problem.evaluate(v, active)[1]
+        seen["inverse"], seen["n_poses"] = np.linalg.inv((J.T @ J).toarray()), problem.n_poses
+        return laplace(problem, v, active, with_poses)
+
+    monkeypatch.setattr(smoother, "_laplace", spy)
+    result = smooth(stream, _params(), pose_std=True, solver=SolverSettings(calibrate_odometry=True))
+    inverse, p = seen["inverse"], 3 * seen["n_poses"]
+    np.testing.assert_allclose(result.pose_std.ravel(), np.sqrt(np.diag(inverse)[:p]), rtol=1e-7)
+    np.testing.assert_allclose(result.odometry_calibration_std, np.sqrt(np.diag(inverse)[-3:]), rtol=1e-7)
+    K = result.observed.sum()
+    landmarks = inverse[p:p + 2 * K, p:p + 2 * K].reshape(K, 2, K, 2)[np.arange(K), :, np.arange(K), :]
+    np.testing.assert_allclose(result.landmarks_cov[result.observed], landmarks, rtol=1e-7)

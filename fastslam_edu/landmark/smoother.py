@@ -28,6 +28,20 @@ loss on the sightings (so that outliers cannot pull the start), then with the
 filter's gate: sightings with :math:`d^2 > ` ``gate_chi2`` at the solution are
 dropped and the problem solved again, until the set of dropped sightings stops changing.
 
+Optionally (``SolverSettings(calibrate_odometry=True)``, :class:`OdometryModel`) the odometry's
+calibration :math:`c = (k_v, k_\\omega, \\tau)` — scale of the speed and of the turn rate, and the lag of
+the robot behind its commands — is estimated with the path and map: :math:`\\Delta_k` becomes
+:math:`\\Delta_k(c)`, three more variables with a weak prior (``CALIBRATION_STD``).
+
+What limits the absolute error on MR.CLAM is the frame, not the map's shape: the map and path are
+right up to a rigid motion to 4–13 cm (aligned), and that motion — a rotation of 2–5° — is fixed by
+the prior on the first pose and the dead reckoning up to the first sightings, seconds later. The
+Laplace approximation says so too: the landmarks' absolute σ is 0.3–0.7 m. A turn in those first
+seconds that the robot executes unlike its commands (Dataset 6 robot 5 turned ~9° of two pulses
+commanded at 16°) rotates the whole solution; the calibration, right on average, does not know the
+first turn (Dataset 6 robot 4 turned 103 % of its first 86° command, against 93 % on average over
+its log) and can move the frame either way (``benchmarks/smoother_mrclam.py``).
+
 Why a FastSLAM book has it: it is the yardstick. Its error against groundtruth
 is what the noise model and the data allow, with all of the log used at once;
 and the inverse of :math:`J^\\top J` at the solution (the Laplace approximation)
@@ -67,6 +81,12 @@ LANDMARK_ANCHOR_STD = 1e3
 #: matrix is then block-tridiagonal with a border (the landmarks), and factorising it in this
 #: order fills in only the border: tens of times faster than SuperLU's default (COLAMD) here.
 ORDERING = "NATURAL"
+#: Prior standard deviations of the odometry calibration :math:`(k_v, k_\\omega, \\tau)` when it is
+#: estimated (``SolverSettings.calibrate_odometry``), about ``params.odometry_scale`` and no lag: weak
+#: (MR.CLAM's robots measure k ≈ 0.90–0.97 and τ ≈ 0.15–0.25 s against groundtruth).
+CALIBRATION_STD = (0.2, 0.2, 0.5)  # -, -, s
+#: Central-difference steps of the relative motions' derivatives by the calibration.
+_CALIBRATION_STEP = (1e-4, 1e-4, 1e-2)
 
 
 @dataclass
@@ -89,6 +109,9 @@ class SmootherResult:
     measurements_used, measurements_rejected : sightings inside / beyond the gate at the solution
     measurements_zero_weight : sightings with β = 0 (a second reading of a landmark at one instant)
     seconds : wall time
+    odometry_calibration : (3,) the estimated :math:`(k_v, k_\\omega, \\tau)` [-, -, s], when
+        ``SolverSettings.calibrate_odometry`` (else None): :class:`OdometryModel`
+    odometry_calibration_std : (3,) their standard deviations (Laplace), or None
     """
 
     t: np.ndarray
@@ -106,6 +129,8 @@ class SmootherResult:
     measurements_rejected: int
     measurements_zero_weight: int
     seconds: float
+    odometry_calibration: np.ndarray | None = None
+    odometry_calibration_std: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------- the problem's pieces
@@ -136,6 +161,56 @@ def dead_reckoning(stream: EventStream, x0, odometry_scale=(1.0, 1.0)) -> np.nda
     """
     u, dt = stream_commands(stream, FastSLAMParams(odometry_scale=tuple(odometry_scale)))
     return dead_reckon(x0, u, dt)
+
+
+def lagged_commands(stream: EventStream, tau: float) -> np.ndarray:
+    """The commands as a robot executes them ``tau`` seconds late: step ``k`` moves with the mean of the
+    recorded commands over :math:`(t_{k-1} - \\tau, t_k - \\tau]` (zero before the log starts). Shape (N, 2).
+
+    Exact for piecewise-constant commands: the integral of the recorded commands, piecewise linear
+    in time, read ``tau`` earlier at every step time.
+    """
+    u = np.array(stream.u, dtype=float)
+    if tau == 0 or len(u) < 2:
+        return u
+    t, dt = np.asarray(stream.t, dtype=float), np.asarray(stream.dt, dtype=float)
+    U = np.concatenate([np.zeros((1, 2)), np.cumsum(u[1:] * dt[1:, None], axis=0)])
+    shifted = np.stack([np.interp(t - tau, t, U[:, i]) for i in range(2)], axis=1)
+    moving = np.flatnonzero(dt > 0)
+    moving = moving[moving > 0]
+    u[moving] = (shifted[moving] - shifted[moving - 1]) / dt[moving, None]
+    return u
+
+
+class OdometryModel:
+    """The relative motions between keyframes as functions of the odometry calibration
+    :math:`c = (k_v, k_\\omega, \\tau)`: the commands, lagged by :math:`\\tau` (:func:`lagged_commands`) and
+    scaled by :math:`(k_v, k_\\omega)`, dead-reckoned.
+
+    MR.CLAM's odometry is the *commanded* velocity; against groundtruth (100 Hz in Dataset 6), the
+    heading change over 2 s windows fits :math:`k_\\omega \\int \\omega(t - \\tau)\\,dt` with τ ≈ 0.15–0.25 s and
+    k_ω ≈ 0.93–0.97 on every robot (residual 20–40 % smaller than without the lag), the distance
+    :math:`k_v \\int v` with k_v ≈ 0.90–0.97: different robot by robot, so estimated with the path.
+    """
+
+    def __init__(self, stream: EventStream, keys: np.ndarray):
+        self.stream, self.keys = stream, np.asarray(keys)
+
+    def deltas(self, c) -> np.ndarray:
+        """:math:`\\Delta_k(c)`, shape (N-1, 3)."""
+        u = lagged_commands(self.stream, float(c[2])) * np.asarray(c[:2], dtype=float)
+        path = dead_reckon(np.zeros(3), u, np.asarray(self.stream.dt, dtype=float))
+        return relative(path[self.keys[:-1]], path[self.keys[1:]])
+
+    def jacobian(self, c) -> np.ndarray:
+        """:math:`\\partial \\Delta_k / \\partial c` by central differences, shape (N-1, 3, 3)."""
+        c = np.asarray(c, dtype=float)
+        cols = []
+        for i, h in enumerate(_CALIBRATION_STEP):
+            d = np.zeros(3)
+            d[i] = h
+            cols.append(wrap_pose_error(self.deltas(c + d) - self.deltas(c - d)) / (2 * h))
+        return np.stack(cols, axis=-1)
 
 
 def odometry_factors(stream: EventStream, path: np.ndarray, keys: np.ndarray, noise: MotionNoise):
@@ -243,16 +318,27 @@ class _Problem:
     Wm: np.ndarray  # (n, 2, 2) √β R^(-1/2)
     Wg: np.ndarray  # (n, 2, 2) R^(-1/2), for the gate's d² (untempered, as the filter's)
     anchor: np.ndarray | None = None  # (L, 2) the landmarks at the start of the round (LANDMARK_ANCHOR_STD)
+    odometry: OdometryModel | None = None  # the calibration is estimated (3 more variables, last)
+    calibration0: np.ndarray | None = None  # (3,) its prior mean (CALIBRATION_STD)
+
+    @property
+    def n_extra(self) -> int:
+        return 0 if self.odometry is None else 3
 
     def split(self, v):
-        return v[: 3 * self.n_poses].reshape(-1, 3), v[3 * self.n_poses:].reshape(-1, 2)
+        return v[: 3 * self.n_poses].reshape(-1, 3), v[3 * self.n_poses: len(v) - self.n_extra].reshape(-1, 2)
+
+    def calibration(self, v):
+        """The odometry calibration in ``v`` (3,), or None when it is not estimated."""
+        return None if self.odometry is None else v[len(v) - 3:]
 
     def evaluate(self, v, active):
         """Whitened residuals and Jacobian (sparse) of the prior, odometry and the ``active`` sightings."""
         poses, lms = self.split(v)
         N = self.n_poses
         r0 = self.W0 @ wrap_pose_error(poses[0] - self.x0)
-        eo, Ja, Jb = odometry_residuals(poses[:-1], poses[1:], self.delta)
+        c = self.calibration(v)
+        eo, Ja, Jb = odometry_residuals(poses[:-1], poses[1:], self.delta if c is None else self.odometry.deltas(c))
         ro = np.einsum("fij,fj->fi", self.Wo, eo)
         Ja, Jb = self.Wo @ Ja, self.Wo @ Jb
         k, lm = self.pose_of[active], self.col_of[active]
@@ -279,10 +365,15 @@ class _Problem:
         ra = (lms - self.anchor) / LANDMARK_ANCHOR_STD
         block(3 + 3 * F + 2 * n + 2 * np.arange(L), 3 * N + 2 * np.arange(L),
               np.broadcast_to(np.eye(2) / LANDMARK_ANCHOR_STD, (L, 2, 2)))
-        shape = (3 + 3 * F + 2 * n + 2 * L, len(v))
+        rc = np.zeros(0)
+        if c is not None:  # ∂e/∂c = −∂Δ/∂c, and the calibration's prior, last
+            block(3 + 3 * np.arange(F), np.full(F, len(v) - 3), -self.Wo @ self.odometry.jacobian(c))
+            rc = (c - self.calibration0) / np.asarray(CALIBRATION_STD)
+            block(np.array([3 + 3 * F + 2 * n + 2 * L]), np.array([len(v) - 3]), np.diag(1 / np.asarray(CALIBRATION_STD))[None])
+        shape = (3 + 3 * F + 2 * n + 2 * L + len(rc), len(v))
         J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
         sightings = slice(3 + 3 * F, 3 + 3 * F + 2 * n)
-        return np.concatenate([r0, ro.ravel(), rm.ravel(), ra.ravel()]), J, sightings
+        return np.concatenate([r0, ro.ravel(), rm.ravel(), ra.ravel(), rc]), J, sightings
 
     def gate_d2(self, v):
         """Untempered :math:`d^2 = e^\\top R^{-1} e` of every sighting at ``v``."""
@@ -391,7 +482,8 @@ def block_tridiagonal_inverse_diagonal(D: np.ndarray, C: np.ndarray) -> np.ndarr
 
 
 def _laplace(problem: _Problem, v, active, with_poses=True):
-    """Standard deviations of the poses and covariances of the landmarks: blocks of :math:`(J^\\top J)^{-1}`.
+    """Standard deviations of the poses, covariances of the landmarks and of the odometry calibration (when it
+    is estimated, as three more landmark-like variables after the landmarks): blocks of :math:`(J^\\top J)^{-1}`.
 
     With the poses first, :math:`J^\\top J = \\begin{pmatrix} P & B \\\\ B^\\top & M \\end{pmatrix}`:
     :math:`P` (3N × 3N) is block-tridiagonal (the prior and the odometry factors link consecutive
@@ -414,22 +506,26 @@ def _laplace(problem: _Problem, v, active, with_poses=True):
     P, B, M = A[:p, :p], A[:p, p:], A[p:, p:].toarray()
     X = splu(P, permc_spec=ORDERING, diag_pivot_thresh=0.0).solve(B.toarray())  # (3N, 2K), P banded: no fill
     cov = np.linalg.inv(M - B.T @ X)
-    K = len(cov) // 2
-    cov_lm = cov.reshape(K, 2, K, 2)[np.arange(K), :, np.arange(K), :]  # the 2×2 blocks on the diagonal
+    K = (len(cov) - problem.n_extra) // 2
+    cov_lm = cov[:2 * K, :2 * K].reshape(K, 2, K, 2)[np.arange(K), :, np.arange(K), :]  # the 2×2 blocks on the diagonal
+    cov_extra = cov[2 * K:, 2 * K:]  # the odometry calibration's, if estimated
     if not with_poses:
-        return np.full((N, 3), np.nan), cov_lm
+        return np.full((N, 3), np.nan), cov_lm, cov_extra
     var = np.diagonal(block_tridiagonal_inverse_diagonal(*_pose_blocks(P, N)), axis1=1, axis2=2).ravel()
     var = var + np.einsum("ij,jk,ik->i", X, cov, X)  # the diagonal of X Σ_mm Xᵀ
-    return np.sqrt(np.maximum(var, 0.0)).reshape(N, 3), cov_lm
+    return np.sqrt(np.maximum(var, 0.0)).reshape(N, 3), cov_lm, cov_extra
 
 
 @dataclass(frozen=True, eq=False)
 class SolverSettings(Params):
-    """When the smoother stops: Levenberg–Marquardt iterations per round, gating rounds, relative cost change."""
+    """How the smoother solves: when it stops (Levenberg–Marquardt iterations per round, gating rounds,
+    relative cost change), and whether it estimates the odometry calibration :math:`(k_v, k_\\omega, \\tau)`
+    with the path and map (``calibrate_odometry``, :class:`OdometryModel`; prior ``CALIBRATION_STD``)."""
 
     max_iterations: int = 100
     max_rounds: int = 10
     tol: float = 1e-10
+    calibrate_odometry: bool = False
 
 
 def smooth(
@@ -491,24 +587,34 @@ def smooth(
     keys = keyframe_steps(stream, max_gap_s)
     path = dead_reckoning(stream, x0, params.odometry_scale)
     problem, seen, use = build_problem(stream, params, keys, path, x0, x0_std)
+    if solver.calibrate_odometry:
+        problem.odometry, problem.calibration0 = OdometryModel(stream, keys), np.array([*params.odometry_scale, 0.0])
     v = starting_point(problem, path, keys, seen, initial)
     v, active, iterations, rounds, cost = solve_with_gate(problem, v, params.gate_chi2, solver)
     poses, lms = problem.split(v)
-    std, cov_lm = _laplace(problem, v, active, with_poses=pose_std)
-    K = stream.n_landmarks
+    std, cov_lm, cov_c = _laplace(problem, v, active, with_poses=pose_std)
+    landmarks, landmarks_cov, observed = _landmark_table(problem, seen, active, lms, cov_lm, stream.n_landmarks)
+    c = problem.calibration(v)
+    return SmootherResult(
+        t=stream.t[keys], steps=keys, poses=wrap_pose_error(poses), pose_std=std, landmarks=landmarks,
+        landmarks_cov=landmarks_cov, observed=observed, landmark_subjects=stream.landmark_subjects,
+        iterations=iterations, rounds=rounds, cost=float(cost), measurements_used=int(active.sum()),
+        measurements_rejected=int((~active).sum()), measurements_zero_weight=int((~use).sum()),
+        seconds=time.perf_counter() - started, odometry_calibration=None if c is None else c.copy(),
+        odometry_calibration_std=None if c is None else np.sqrt(np.diag(cov_c)),
+    )
+
+
+def _landmark_table(problem, seen, active, lms, cov_lm, K: int):
+    """The map in the stream's landmark order: ``(landmarks (K, 2), covariances (K, 2, 2), observed (K,))``;
+    NaN for a landmark never seen, or whose every sighting is beyond the gate."""
     landmarks = np.full((K, 2), np.nan)
     landmarks_cov = np.full((K, 2, 2), np.nan)
     kept = np.bincount(problem.col_of[active], minlength=len(seen)) > 0  # some sighting inside the gate
     landmarks[seen[kept]], landmarks_cov[seen[kept]] = lms[kept], cov_lm[kept]
     observed = np.zeros(K, dtype=bool)
     observed[seen[kept]] = True
-    return SmootherResult(
-        t=stream.t[keys], steps=keys, poses=wrap_pose_error(poses), pose_std=std, landmarks=landmarks,
-        landmarks_cov=landmarks_cov, observed=observed, landmark_subjects=stream.landmark_subjects,
-        iterations=iterations, rounds=rounds, cost=float(cost), measurements_used=int(active.sum()),
-        measurements_rejected=int((~active).sum()), measurements_zero_weight=int((~use).sum()),
-        seconds=time.perf_counter() - started,
-    )
+    return landmarks, landmarks_cov, observed
 
 
 def build_problem(stream: EventStream, params: FastSLAMParams, keys, path, x0, x0_std):
@@ -537,7 +643,8 @@ def build_problem(stream: EventStream, params: FastSLAMParams, keys, path, x0, x
 
 
 def starting_point(problem, path, keys, seen, initial: FastSLAMResult | None) -> np.ndarray:
-    """The start of the optimisation: the filter's estimate, or dead reckoning and landmarks from their first sighting."""
+    """The start of the optimisation: the filter's estimate, or dead reckoning and landmarks from their first
+    sighting (and the calibration's prior mean, when it is estimated)."""
     if initial is not None:
         poses = np.array(initial.pose_mean[keys], dtype=float)
         poses[:, 2] = path[keys, 2] + wrap_angle(poses[:, 2] - path[keys, 2])
@@ -548,7 +655,8 @@ def starting_point(problem, path, keys, seen, initial: FastSLAMResult | None) ->
     if initial is not None:
         from_filter = initial.observed[seen] & np.all(np.isfinite(initial.landmarks_mean[seen]), axis=1)
         lms[from_filter] = initial.landmarks_mean[seen][from_filter]
-    return np.concatenate([poses.ravel(), lms.ravel()])
+    extra = [] if problem.odometry is None else [problem.calibration0]
+    return np.concatenate([poses.ravel(), lms.ravel(), *extra])
 
 
 def solve_with_gate(problem, v, gate: float | None, solver: SolverSettings):
