@@ -25,6 +25,7 @@ landmark        landmark SLAM
     tree            Montemerlo's persistent balanced tree of landmark filters
     fastslam_tree   the filter with tree-backed maps (O(M log K) resampling)
     ekf_slam        EKF-SLAM: the joint Gaussian over pose and map (the baseline); barcodes known or not
+    association     FastSLAM with unknown correspondences: per-particle maximum likelihood, new landmarks, negative evidence
     smoother        least squares over the whole log: the most probable path and map under the same model
     initial_pose    the start pose from the first sightings of surveyed landmarks (robots without groundtruth)
 
@@ -40,6 +41,7 @@ evaluation      measuring results
     consistency     NEES: is the filter's reported uncertainty honest (the particle cloud's covariance)
     noise_estimation  the sensor and odometry noise, measured against groundtruth
     audit           the MR.CLAM landmark table checked against the sightings
+    association     scoring data association: map matched to the survey, accuracy, the oracle bound
 
 app             the application
     experiment      one MR.CLAM run end to end (load, audit, run, score)

@@ -63,6 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="initial pose [m, m, rad] (write --x0=X,Y,THETA when X is negative), or 'landmarks' to "
                           "find it from the first sightings of the surveyed landmarks (robots without groundtruth); "
                           "default: groundtruth at the first step")
+    run.add_argument("--correspondences", choices=("known", "unknown"), default="known",
+                     help="known: the barcodes say which landmark a sighting is (default); unknown: FastSLAM decides "
+                          "per particle (fastslam_edu.landmark.association), every sighting given without its barcode "
+                          "(other robots and misread barcodes included); the barcodes only score the associations")
     run.add_argument("--mode", choices=MODES, default="slam")
     run.add_argument("--proposal", choices=PROPOSALS, default="motion",
                      help="motion: FastSLAM 1.0 (default); fastslam2: FastSLAM 2.0's proposal")
@@ -220,6 +224,52 @@ def _ekf_figure(result, ctx, title: str):
     return fig
 
 
+#: The lines ``fastslam-edu run --correspondences unknown`` prints, in order.
+UNKNOWN_KEYS = ("association_accuracy", "association_accuracy_oracle", "landmarks_in_map", "landmarks_spurious",
+                "landmark_error_mean_m", "landmark_error_aligned_mean_m", "path_rmse_m", "path_rmse_aligned_m",
+                "sightings", "clutter_sightings", "filter_seconds")
+
+
+def cmd_run_unknown(args) -> int:
+    """``fastslam-edu run --correspondences unknown``: FastSLAM deciding the associations, scored by the barcodes."""
+    from fastslam_edu.app.experiment import run_mrclam_unknown
+    from fastslam_edu.landmark.association import AssociationParams
+
+    given = [name for name, used in (("--proposal", args.proposal != "motion"), ("--mode", args.mode != "slam"),
+                                     ("--smooth", args.smooth), ("--rate 1hz", args.rate != "full")) if used]
+    if given:
+        raise ValueError(f"{', '.join(given)}: not available with --correspondences unknown")
+    defaults = AssociationParams()
+    f = defaults.filter
+    params = defaults.replace(filter=f.replace(n_particles=f.n_particles if args.particles is None else args.particles,
+                                               resampler=args.resampler or f.resampler))
+    result, summary, ctx = run_mrclam_unknown(args.data, args.robot, params, args.seed, rate=args.rate, x0=args.x0,
+                                              groundtruth_file=args.groundtruth, audit=not args.no_audit)
+    summary["filter"] = "fastslam"
+    for note in summary["notes"]:
+        print(f"note: {note}", file=sys.stderr)
+    _print_rows([(k, summary.get(k)) for k in UNKNOWN_KEYS])
+    if args.json:
+        args.json.write_text(json.dumps(summary, indent=2))
+    if args.plot:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        truth = ctx["dataset"].landmark_positions
+        fig, ax = plt.subplots(figsize=(7, 6))
+        ax.plot(result.pose_mean[:, 0], result.pose_mean[:, 1], lw=0.6, label="path (mean)")
+        ax.plot(truth[:, 0], truth[:, 1], "k*", label="surveyed landmarks")
+        ax.plot(result.landmarks[:, 0], result.landmarks[:, 1], "r+", label="map (best particle)")
+        ax.set(xlabel="x [m]", ylabel="y [m]", aspect="equal",
+               title=f"{args.data.name} robot {args.robot}, unknown correspondences, seed {args.seed}")
+        ax.legend(fontsize=7)
+        fig.savefig(args.plot, dpi=120)
+        plt.close(fig)
+    return 0
+
+
 def cmd_run(args) -> int:
     from fastslam_edu.app.experiment import run_mrclam
     from fastslam_edu.landmark.fastslam import ProgressBar
@@ -227,7 +277,12 @@ def cmd_run(args) -> int:
     if not args.data.is_dir():
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
     if args.filter == "ekf":
+        if args.correspondences == "unknown":
+            raise ValueError("--correspondences unknown is FastSLAM's (fastslam_edu.landmark.association), "
+                             "not EKF-SLAM's: drop --filter ekf")
         return cmd_run_ekf(args)
+    if args.correspondences == "unknown":
+        return cmd_run_unknown(args)
     if args.smooth and args.mode != "slam":
         raise ValueError(f"--smooth solves full SLAM; it does not apply to --mode {args.mode}")
     defaults = FastSLAMParams()

@@ -33,6 +33,7 @@ CHAPTERS: dict[str, str] = {
     "15_grid_slam": "Grid SLAM",
     "16_thor_humanoid": "SLAM on a humanoid (THOR)",
     "17_ekf_slam": "EKF-SLAM, the baseline",
+    "18_hidden_barcodes": "When the barcodes are hidden",
 }
 
 #: Chapter -> the chapters it builds on directly (each of them comes earlier).
@@ -54,6 +55,7 @@ PREREQUISITES: dict[str, tuple[str, ...]] = {
     "15_grid_slam": ("06_resampling", "14_occupancy_grid"),
     "16_thor_humanoid": ("15_grid_slam",),
     "17_ekf_slam": ("12_consistency",),
+    "18_hidden_barcodes": ("10_fastslam_on_mrclam",),
 }
 
 #: The book's parts, for the map's columns: caption -> chapters.
@@ -65,7 +67,7 @@ PARTS: dict[str, tuple[str, ...]] = {
                                 "11_fastslam2_proposal", "12_consistency"),
     "The tree trick": ("13_landmark_tree",),
     "Grid SLAM with LiDAR": ("14_occupancy_grid", "15_grid_slam", "16_thor_humanoid"),
-    "Beyond FastSLAM": ("17_ekf_slam",),
+    "Beyond FastSLAM": ("17_ekf_slam", "18_hidden_barcodes"),
 }
 
 #: Two ways through the book: path -> sessions -> chapters (reading before the first session included).

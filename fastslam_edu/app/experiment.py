@@ -290,3 +290,103 @@ def run_mrclam_ekf(path, robot: int, params: EKFSLAMParams = EKFSLAMParams(), *,
         x0=[float(v) for v in stream.x0], sightings_skipped=_skipped(log),
     )
     return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes}
+
+
+# ---------------------------------------------------------------- unknown correspondences
+
+
+#: The subject given to every sighting that is not of a surveyed landmark (another robot, an unknown barcode).
+CLUTTER = -1
+
+
+def anonymous_stream(path, robot: int, dataset: Dataset, log: RobotLog, *, rate: str = "full", x0=None):
+    """Every sighting of the robot's measurement file, landmark or not, as an event stream, and its truth.
+
+    Returns ``(stream, true_index)``: the stream holds all sightings (of landmarks, of the other
+    robots, of barcodes in no table) in the order the known-correspondence stream would; ``true_index``
+    (n,) is the surveyed landmark (index into ``dataset.landmark_subjects``) each is of, -1 for clutter.
+    The filter with unknown correspondences reads only the stream's ``z``; ``true_index`` scores it.
+    """
+    from fastslam_edu.datasets.mrclam import read_measurements
+
+    raw = read_measurements(Path(path) / f"Robot{robot}_Measurement.dat")
+    subject_of = {int(b): int(s) for b, s in dataset.barcodes.items()}
+    surveyed = set(dataset.landmark_subjects.tolist())
+    subject = np.array([subject_of.get(int(b), CLUTTER) for b in raw["barcode"]], dtype=np.int64)
+    subject[~np.isin(subject, list(surveyed))] = CLUTTER
+    measurements = raw.rename(columns={"barcode": "subject"}).assign(subject=subject)
+    everything = dataclasses.replace(log, measurements=measurements)
+    subjects = np.append(dataset.landmark_subjects, CLUTTER)
+    stream = event_stream(everything, subjects, rate=rate, x0=x0)
+    true_index = np.where(stream.landmark == len(subjects) - 1, -1, stream.landmark)
+    return stream, true_index
+
+
+def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLog) -> dict:
+    """The figures of a run with unknown correspondences: association scores, map counts and the usual errors.
+
+    The map's landmarks are matched to the surveyed ones (:func:`fastslam_edu.evaluation.association.match_landmarks`);
+    the landmark errors are those of the matched landmarks.
+    """
+    from fastslam_edu.evaluation import association as score
+
+    truth = dataset.landmark_positions
+    match = score.match_landmarks(result.landmarks, truth)
+    landmarks = np.full(truth.shape, np.nan)
+    landmarks[match[match >= 0]] = result.landmarks[match >= 0]
+    observed = np.zeros(len(truth), dtype=bool)
+    observed[match[match >= 0]] = True
+    out: dict = {
+        "correspondences": "unknown",
+        "steps": int(len(result.t)),
+        "sightings": int(len(true_index)),
+        "landmark_sightings": int(np.sum(true_index >= 0)),
+        "clutter_sightings": int(np.sum(true_index < 0)),
+        "association_accuracy": score.association_accuracy(result.history, true_index, result.landmark_ident, match),
+        "association_accuracy_oracle": None,
+        "landmarks_in_map": score.landmarks_in_map(result.landmarks),
+        "landmarks_spurious": int(np.sum(match < 0)),
+        "landmarks_provisional": result.n_provisional,
+        "landmarks_created": result.landmarks_created,
+        "resamples": result.n_resamples,
+        "filter_seconds": round(result.filter_seconds, 4),
+    }
+    if log.groundtruth is not None:
+        step = np.searchsorted(stream.offsets, np.arange(len(true_index)), side="right") - 1
+        t = stream.t[step]
+        gt = log.groundtruth["time"].to_numpy()
+        inside = (t >= gt[0] - 0.5) & (t <= gt[-1] + 0.5)
+        poses = np.full((len(t), 3), np.nan)
+        poses[inside] = groundtruth_at(log, t[inside])
+        R = result.params.filter.measurement_covariance(stream.z)
+        out["association_accuracy_oracle"] = score.association_accuracy_oracle(
+            poses[inside], stream.z[inside], R[inside], truth, np.asarray(true_index)[inside])
+    out.update(score_estimate(result.t, result.pose_mean, landmarks, observed, dataset.landmark_subjects,
+                              dataset, log))
+    return out
+
+
+def run_mrclam_unknown(path, robot: int, params=None, seed: int = 0, *, rate: str = "full", x0=None,
+                       **load_options):
+    """Load, run and score FastSLAM with unknown correspondences on one robot of a MR.CLAM dataset.
+
+    As :func:`run_mrclam` (same loading, audit, initial pose), with every sighting of the robot's
+    measurement file given to :func:`fastslam_edu.landmark.association.run_unknown` without its
+    barcode (:func:`anonymous_stream`); the barcodes score the run (:func:`summarize_unknown`).
+    ``params``: an :class:`~fastslam_edu.landmark.association.AssociationParams` (default: its defaults).
+    Returns ``(result, summary, context)``; ``context`` adds ``true_index``.
+    """
+    from fastslam_edu.landmark.association import AssociationParams, run_unknown
+
+    params = AssociationParams() if params is None else params
+    dataset, log, notes, known = prepare_run(path, robot, rate=rate, x0=x0, **load_options)
+    stream, true_index = anonymous_stream(path, robot, dataset, log, rate=rate, x0=known.x0)
+    notes = [n for n in notes if n not in dropped_sightings_notes(log)]  # nothing is skipped here
+    notes.append(f"{int(np.sum(true_index < 0))} sighting(s) of other robots and unknown barcodes given to the "
+                 "filter as clutter (without identity, like every sighting)")
+    result = run_unknown(stream, params, np.random.default_rng(seed))
+    summary = summarize_unknown(result, stream, true_index, dataset, log)
+    summary.update(dataset=str(path), robot=robot, rate=rate, seed=seed, params=params.to_dict(), notes=notes,
+                   x0=[float(v) for v in stream.x0])
+    return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes,
+                             "true_index": true_index}

@@ -1,0 +1,151 @@
+"""Scoring data association: which map landmark each sighting went to, against the barcodes.
+
+The filter with unknown correspondences (:mod:`fastslam_edu.landmark.association`) never
+sees a barcode; the barcodes only score it:
+
+* :func:`match_landmarks`: the map's landmarks matched one to one to the surveyed ones
+  (``scipy.optimize.linear_sum_assignment`` on the distances, after the SE(2) alignment
+  of the matched pairs; a pair further apart than ``max_distance`` is no match);
+* :func:`association_accuracy`: the fraction of landmark sightings that the
+  highest-weight particle assigned to the map landmark matched to the sighting's
+  true subject;
+* :func:`association_accuracy_oracle`: the same fraction for maximum-likelihood
+  association at the groundtruth pose against the surveyed map, with the filter's
+  :math:`R`: the best any association can do with this sensor;
+* :func:`landmarks_in_map` and :func:`landmarks_spurious` (map landmarks matched to no surveyed one).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from fastslam_edu.core.measurement import innovation, range_bearing
+from fastslam_edu.evaluation.metrics import align_se2, apply_se2
+
+#: Map landmarks further than this from every surveyed landmark they could be matched to are spurious [m].
+MAX_MATCH_DISTANCE = 1.0
+
+
+def _assign(estimate, truth, max_distance):
+    d = np.linalg.norm(estimate[:, None, :] - truth[None, :, :], axis=-1)
+    rows, cols = linear_sum_assignment(np.where(d <= max_distance, d, 1e6))
+    ok = d[rows, cols] <= max_distance
+    out = np.full(len(estimate), -1, dtype=np.int64)
+    out[rows[ok]] = cols[ok]
+    return out
+
+
+def match_landmarks(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE, align: bool = True,
+                    iterations: int = 3) -> np.ndarray:
+    """For each map landmark (L, 2), the index of the surveyed landmark (K, 2) it is matched to, or -1.
+
+    The one-to-one assignment that minimises the summed distance
+    (``scipy.optimize.linear_sum_assignment``); pairs further apart than ``max_distance`` are unmatched.
+    With ``align`` (default) the map is first moved by the SE(2) motion that fits the matched pairs
+    (:func:`fastslam_edu.evaluation.metrics.align_se2`), and matched again, ``iterations`` times: SLAM
+    recovers the map only up to such a motion, and where surveyed landmarks stand a few tenths of a
+    metre apart a small offset of the whole map would otherwise match each landmark to its neighbour.
+    """
+    estimate = np.asarray(estimate, dtype=float).reshape(-1, 2)
+    truth = np.asarray(truth, dtype=float).reshape(-1, 2)
+    if len(estimate) == 0 or len(truth) == 0:
+        return np.full(len(estimate), -1, dtype=np.int64)
+    out = _assign(estimate, truth, max_distance)
+    moved = estimate
+    for _ in range(iterations if align else 0):
+        ok = out >= 0
+        if ok.sum() < 3:
+            break
+        R, t, _ = align_se2(estimate[ok], truth[out[ok]])
+        moved = apply_se2(estimate, R, t)
+        again = _assign(moved, truth, max_distance)
+        if np.array_equal(again, out):
+            break
+        out = again
+    return out
+
+
+def landmarks_in_map(estimate) -> int:
+    """How many landmarks the map holds."""
+    return int(np.asarray(estimate, dtype=float).reshape(-1, 2).shape[0])
+
+
+def landmarks_spurious(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE) -> int:
+    """Map landmarks matched to no surveyed landmark (:func:`match_landmarks`)."""
+    return int(np.sum(match_landmarks(estimate, truth, max_distance) < 0))
+
+
+def association_accuracy(history, true_index, map_ident, map_match) -> float:
+    """Fraction of landmark sightings assigned to the map landmark matched to their true subject.
+
+    ``history`` (n,): the identity of the landmark each sighting was assigned to (-1: none);
+    ``true_index`` (n,): the surveyed landmark each sighting is of (-1: clutter, not scored);
+    ``map_ident`` (L,): the identities of the map's landmarks; ``map_match`` (L,): the surveyed
+    landmark each is matched to (-1: none, :func:`match_landmarks`). NaN if no landmark sighting.
+    """
+    history = np.asarray(history, dtype=np.int64)
+    true_index = np.asarray(true_index, dtype=np.int64)
+    scored = true_index >= 0
+    if not scored.any():
+        return float("nan")
+    truth_of = dict(zip(np.asarray(map_ident).tolist(), np.asarray(map_match).tolist()))
+    assigned = np.array([truth_of.get(h, -1) for h in history[scored].tolist()], dtype=np.int64)
+    return float(np.mean((assigned == true_index[scored]) & (assigned >= 0)))
+
+
+def oracle_association(poses, z, R, landmarks) -> np.ndarray:
+    """Maximum-likelihood association at known poses (n, 3) against a known map (K, 2): the index per sighting.
+
+    :math:`\\arg\\max_j \\log\\mathcal N(z \\ominus h(x, m_j); 0, R)` with the sighting's ``R`` (n, 2, 2).
+    """
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    z = np.asarray(z, dtype=float).reshape(-1, 2)
+    R = np.broadcast_to(np.asarray(R, dtype=float), (len(z), 2, 2))
+    landmarks = np.asarray(landmarks, dtype=float).reshape(-1, 2)
+    nu = innovation(z[:, None, :], range_bearing(poses[:, None, :], landmarks[None, :, :]))  # (n, K, 2)
+    Rinv = np.linalg.inv(R)[:, None]
+    d2 = np.einsum("nki,nkij,nkj->nk", nu, np.broadcast_to(Rinv, nu.shape[:2] + (2, 2)), nu)
+    return np.argmin(d2, axis=1).astype(np.int64)  # one R per sighting: the likelihood falls with d²
+
+
+def association_accuracy_oracle(poses, z, R, landmarks, true_index) -> float:
+    """The fraction of landmark sightings (``true_index >= 0``) that :func:`oracle_association` gets right."""
+    true_index = np.asarray(true_index, dtype=np.int64)
+    scored = true_index >= 0
+    if not scored.any():
+        return float("nan")
+    guess = oracle_association(np.asarray(poses)[scored], np.asarray(z)[scored], np.asarray(R)[scored], landmarks)
+    return float(np.mean(guess == true_index[scored]))
+
+
+def association_table(history, true_index, map_ident, n_landmarks: int) -> np.ndarray:
+    """Counts (L, K + 1): how many sightings of surveyed landmark ``j`` (column ``j``; the last column: clutter)
+    went to map landmark ``l`` (row, in the order of ``map_ident``). Sightings assigned to no map landmark
+    (a landmark later removed, or still provisional) are not counted.
+
+    A row with several large entries is a **merged** landmark (one map landmark for several surveyed ones);
+    a column with several large entries a **split** one (several map landmarks for one surveyed landmark).
+    """
+    history = np.asarray(history, dtype=np.int64)
+    true_index = np.asarray(true_index, dtype=np.int64)
+    row = {int(i): r for r, i in enumerate(np.asarray(map_ident).tolist())}
+    table = np.zeros((len(row), n_landmarks + 1), dtype=np.int64)
+    for h, j in zip(history.tolist(), true_index.tolist()):
+        if h in row:
+            table[row[h], j if j >= 0 else n_landmarks] += 1
+    return table
+
+
+def merged_and_split(table, share: float = 0.2) -> tuple[int, int]:
+    """From :func:`association_table`: map landmarks whose sightings come from two or more surveyed landmarks
+    (each at least ``share`` of the row: merged), and surveyed landmarks spread over two or more map landmarks
+    (each at least ``share`` of the column: split)."""
+    t = np.asarray(table, dtype=float)[:, :-1]
+    rows = t / np.maximum(t.sum(axis=1, keepdims=True), 1)
+    cols = t / np.maximum(t.sum(axis=0, keepdims=True), 1)
+    return int(np.sum((rows >= share).sum(axis=1) >= 2)), int(np.sum((cols >= share).sum(axis=0) >= 2))
+
+
+__all__ = ["association_table", "merged_and_split", "MAX_MATCH_DISTANCE", "match_landmarks", "landmarks_in_map", "landmarks_spurious", "association_accuracy",
+           "oracle_association", "association_accuracy_oracle"]

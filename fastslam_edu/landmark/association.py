@@ -1,0 +1,542 @@
+"""FastSLAM 1.0 with unknown correspondences: each particle decides which landmark a sighting is.
+
+Montemerlo et al. (2003) and *Probabilistic Robotics* §13.8. The filter never
+sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
+
+1. **Maximum-likelihood association** (:func:`best_landmark`): the likelihood
+   :math:`\\mathcal N(z - \\hat z_j; 0, Q_j)` of each landmark :math:`j` the particle
+   holds, and the likelihood :math:`p_0` of a landmark never seen before. The
+   most likely hypothesis wins: an existing landmark is updated by its EKF
+   (:func:`fastslam_edu.core.ekf.ekf_update`) and the weight grows by its
+   log-likelihood; if :math:`p_0` wins a new landmark is initialised
+   (:func:`fastslam_edu.core.ekf.ekf_initialise`) and the weight grows by
+   :math:`\\log p_0`.
+2. **Mutual exclusion** (optional, ``exclusive``): within one camera frame two
+   sightings are two different things, so a landmark taken by one sighting of
+   the instant is not offered to the next.
+3. **Negative evidence** (:func:`negative_evidence`): a landmark the particle
+   expects to see (inside the camera's field of view and range) at an instant
+   when something is seen, but which no sighting of that instant was assigned
+   to, counts a miss. A *provisional* landmark (seen fewer than ``n_confirm``
+   times) is removed once it has been missed ``max_misses`` times more than it
+   has been seen: clutter (another robot, a misread) leaves no trace. A confirmed
+   landmark is removed when its misses reach ``confirmed_miss_ratio`` times its
+   sightings plus ``max_misses`` (a copy that a newer landmark has replaced).
+
+The new-landmark likelihood is the Gaussian of a fresh landmark,
+:math:`Q = H\\Sigma H^\\top + R = 2R`, evaluated :math:`d_0` standard deviations away
+(``new_landmark_chi2`` is :math:`d_0^2`)::
+
+    log p0 = -d0²/2 - log 2π - ½ log det(2R)
+
+and it wins when the most likely landmark is further than :math:`d_0` in
+Mahalanobis distance. What real data adds (:func:`association_loglik`): the
+association's :math:`Q` includes the drift the particle's pose may have made,
+relative to a landmark, since the landmark was last seen (``drift_xy``,
+``drift_theta``, per √s of that time), so that a landmark seen again after a
+long loop is not taken for a new one; the weights are those of table 13.1.
+
+Each particle therefore carries its own *association history*: resampling keeps
+the particles whose associations explained the sightings well.
+
+Particles hold a variable number of landmarks: arrays sized to ``max_landmarks``
+with a count per particle (:class:`MapParticles`). Every landmark has an
+identity (``ident``) that copies share after resampling, so the association
+history of the final best particle can be read back through its ancestors
+(:func:`best_history`) and scored (:mod:`fastslam_edu.evaluation.association`).
+
+The kernels are numba ``njit(cache=True)`` and run as plain Python with
+``NUMBA_DISABLE_JIT=1``; the motion model, weights and resampling are the
+kernels of :mod:`fastslam_edu.landmark.fastslam_step`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from fastslam_edu.core.angles import wrap_one
+from fastslam_edu.core.ekf import LOG_2PI, ekf_initialise, ekf_innovation, ekf_update, expected_measurement
+from fastslam_edu.core.params import Params
+from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.landmark.fastslam import (RESAMPLER_CODES, FastSLAMParams, _segments, stream_commands)
+from fastslam_edu.landmark.fastslam_step import (Log, Settings, normalise_weights, resampling_indices,
+                                                 sample_segment, standard_normals, weighted_mean_pose)
+
+
+@dataclass(frozen=True, eq=False)
+class AssociationParams(Params):
+    """Settings of FastSLAM with unknown correspondences.
+
+    Attributes
+    ----------
+    filter : FastSLAMParams
+        Particles, motion and measurement noise, tempering (``measurement_correlation_s``),
+        resampling: as with known correspondences (its gate is not used: a sighting
+        no landmark explains becomes a new landmark).
+    new_landmark_chi2 : float
+        :math:`d_0^2` of the new-landmark likelihood :math:`p_0` (module docstring).
+    exclusive : bool
+        Mutual exclusion: one landmark per sighting within one instant.
+    max_landmarks : int
+        Landmarks a particle can hold (a sighting that would exceed it is not mapped).
+    fov : float
+        Half the camera's field of view [rad]: where negative evidence is counted.
+    min_range, max_range : float
+        Ranges [m] at which a landmark is expected to be seen.
+    n_confirm : int
+        Sightings after which a landmark is no longer provisional (and is in the map).
+    max_misses : int
+        A provisional landmark is removed when its misses exceed its sightings by this many.
+    pose_uncertainty : float
+        Scale of the particle set's pose covariance added to the association's likelihoods
+        (0: each particle trusts its own pose, as table 13.1; 1: the set's spread).
+    provisional_as_new : bool
+        A sighting assigned to a provisional landmark weighs the particle with :math:`p_0`, as a
+        new landmark does: a landmark the particle made up recently does not yet explain anything.
+    drift_xy, drift_theta : float
+        Drift of the pose relative to a landmark per √s since it was last seen [m/√s, rad/√s], added
+        to the association's innovation covariance (0, 0: table 13.1's :math:`Q`).
+    association_range_scale : float
+        Scale of the range standard deviation in the association's :math:`Q` (1: the filter's :math:`R`).
+    confirmed_miss_ratio : float
+        A confirmed landmark is removed when missed ``ratio × seen + max_misses`` times (inf: never).
+    """
+
+    filter: FastSLAMParams = field(default_factory=FastSLAMParams)
+    new_landmark_chi2: float = 16.0
+    exclusive: bool = True
+    max_landmarks: int = 128
+    fov: float = 0.45
+    min_range: float = 0.5
+    max_range: float = 4.0
+    n_confirm: int = 5
+    max_misses: int = 3
+    pose_uncertainty: float = 0.0
+    provisional_as_new: bool = True
+    drift_xy: float = 0.02
+    drift_theta: float = 0.02
+    association_range_scale: float = 1.0
+    confirmed_miss_ratio: float = 2.0
+
+    def __post_init__(self):
+        if not isinstance(self.filter, FastSLAMParams):
+            raise ValueError(f"filter must be a FastSLAMParams, got {self.filter!r}")
+        if self.filter.mode != "slam" or self.filter.proposal != "motion":
+            raise ValueError("unknown correspondences: FastSLAM 1.0 in mode 'slam' only")
+        if self.filter.resampler not in RESAMPLER_CODES:
+            raise ValueError(f"resampler must be one of {sorted(RESAMPLER_CODES)}, got {self.filter.resampler!r}")
+        if not (math.isfinite(self.new_landmark_chi2) and self.new_landmark_chi2 > 0):
+            raise ValueError(f"new_landmark_chi2 must be > 0, got {self.new_landmark_chi2!r}")
+        if int(self.max_landmarks) < 1 or int(self.n_confirm) < 1 or int(self.max_misses) < 1:
+            raise ValueError("max_landmarks, n_confirm and max_misses must be >= 1")
+        if not (0 < self.fov <= math.pi and 0 <= self.min_range < self.max_range):
+            raise ValueError(f"need 0 < fov <= pi and 0 <= min_range < max_range, got {self.fov}, "
+                             f"{self.min_range}, {self.max_range}")
+
+
+    def rules(self) -> "Rules":
+        """The settings as the compiled kernels take them (:class:`Rules`)."""
+        tau = self.filter.measurement_correlation_s
+        return Rules(float(self.new_landmark_chi2), bool(self.exclusive), float(self.fov), float(self.min_range),
+                     float(self.max_range), int(self.n_confirm), int(self.max_misses),
+                     0.0 if tau is None else float(tau), float(self.pose_uncertainty), bool(self.provisional_as_new),
+                     float(self.drift_xy), float(self.drift_theta), float(self.association_range_scale),
+                     float(self.confirmed_miss_ratio))
+
+
+class MapParticles(NamedTuple):
+    """The particle set with variable-size maps (M particles, up to Kmax landmarks each), changed in place.
+
+    poses (M, 3); mu (M, Kmax, 2); sigma (M, Kmax, 2, 2); n (M,) landmarks held;
+    ident (M, Kmax) identity of each landmark; seen, missed (M, Kmax) counts;
+    last_t (M, Kmax) time of the last sighting [s]; logw (M,).
+    """
+
+    poses: np.ndarray
+    mu: np.ndarray
+    sigma: np.ndarray
+    n: np.ndarray
+    ident: np.ndarray
+    seen: np.ndarray
+    missed: np.ndarray
+    last_t: np.ndarray
+    logw: np.ndarray
+
+
+def initial_particles(n_particles: int, max_landmarks: int, x0) -> MapParticles:
+    """All particles at ``x0`` (3,), with empty maps and equal weights."""
+    M, K = int(n_particles), int(max_landmarks)
+    x0 = np.asarray(x0, dtype=float)
+    if x0.shape != (3,) or not np.isfinite(x0).all():
+        raise ValueError(f"initial pose must be 3 finite numbers, got {x0!r}")
+    return MapParticles(np.tile(x0, (M, 1)), np.zeros((M, K, 2)), np.tile(np.eye(2), (M, K, 1, 1)),
+                        np.zeros(M, dtype=np.int64), np.full((M, K), -1, dtype=np.int64),
+                        np.zeros((M, K), dtype=np.int64), np.zeros((M, K), dtype=np.int64),
+                        np.zeros((M, K)), np.zeros(M))
+
+
+class Rules(NamedTuple):
+    """The association settings as the kernels take them (:class:`AssociationParams`)."""
+
+    new_chi2: float
+    exclusive: bool
+    fov: float
+    min_range: float
+    max_range: float
+    n_confirm: int
+    max_misses: int
+    tau: float
+    pose_scale: float
+    provisional_as_new: bool
+    drift_xy: float
+    drift_theta: float
+    range_scale: float
+    miss_ratio: float
+
+
+# ---------------------------------------------------------------- one particle, one sighting
+
+
+@njit(cache=True)
+def new_landmark_loglik(R, d0_sq):
+    """:math:`\\log p_0`: a fresh landmark's Gaussian (:math:`Q = 2R`) at squared Mahalanobis distance ``d0_sq``."""
+    det_2r = 4.0 * (R[0, 0] * R[1, 1] - 0.25 * (R[0, 1] + R[1, 0]) ** 2)
+    return -0.5 * d0_sq - LOG_2PI - 0.5 * math.log(det_2r)
+
+
+@njit(cache=True)
+def pose_term(pose, mx, my, cloud):
+    """:math:`H_x P H_x^\\top` (``a, b, d``: entries 00, 01, 11) for a landmark at ``(mx, my)``: the pose
+    covariance ``cloud`` (3, 3) of the particle set carried into measurement space."""
+    dx, dy = mx - pose[0], my - pose[1]
+    q = dx * dx + dy * dy
+    r = math.sqrt(q)
+    j0, j1, j2 = -dx / r, -dy / r, 0.0  # H_x = ∂h/∂x, rows r and φ
+    k0, k1, k2 = dy / q, -dx / q, -1.0
+    a = b = d = 0.0
+    for u, cu, ku in ((0, j0, k0), (1, j1, k1), (2, j2, k2)):
+        for v, cv, kv in ((0, j0, k0), (1, j1, k1), (2, j2, k2)):
+            a += cu * cloud[u, v] * cv
+            b += cu * cloud[u, v] * kv
+            d += ku * cloud[u, v] * kv
+    return a, b, d
+
+
+@njit(cache=True)
+def association_loglik(pose, z, R, mu, sigma, cloud, unseen_s, rules):
+    """What the association decides by, for one landmark: ``(loglik, d2)`` of the sighting with
+    :math:`Q + H_x P H_x^\\top`, the pose uncertainty added to the innovation covariance.
+
+    :math:`P` is ``cloud`` (the particle set's covariance, scaled; zeros: table 13.1's) plus the drift
+    the particle's pose may have made relative to the landmark since it was last seen, ``unseen_s``
+    seconds ago: :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\Delta t`
+    (``rules.drift_xy``, ``rules.drift_theta``, per √s).
+    """
+    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, ll = ekf_innovation(pose, z, R, mu, sigma)
+    P = cloud.copy()
+    P[0, 0] += rules.drift_xy ** 2 * unseen_s
+    P[1, 1] += rules.drift_xy ** 2 * unseen_s
+    P[2, 2] += rules.drift_theta ** 2 * unseen_s
+    a, b, d = pose_term(pose, mu[0], mu[1], P)
+    q00, q01, q11 = q00 + a - (1.0 - rules.range_scale ** 2) * R[0, 0], q01 + b, q11 + d
+    det_q = q00 * q11 - q01 * q01
+    d2 = (q11 * nu0 * nu0 - 2.0 * q01 * nu0 * nu1 + q00 * nu1 * nu1) / det_q
+    return -0.5 * d2 - LOG_2PI - 0.5 * math.log(det_q), d2
+
+
+@njit(cache=True)
+def best_landmark(P, m, z, R, taken, cloud, t, rules):
+    """The most likely landmark of particle ``m`` for sighting ``z`` at time ``t``: ``(k, loglik, d2)``
+    (:func:`association_loglik`); ``(-1, -inf, inf)`` if it holds none. Landmarks with ``taken[k]`` set
+    (mutual exclusion) are skipped.
+    """
+    best, best_ll, best_d2 = -1, -math.inf, math.inf
+    for k in range(P.n[m]):
+        if taken[k]:
+            continue
+        ll, d2 = association_loglik(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k], rules)
+        if ll > best_ll:
+            best, best_ll, best_d2 = k, ll, d2
+    return best, best_ll, best_d2
+
+
+@njit(cache=True)
+def add_landmark(P, m, z, R, ident, t):
+    """A new landmark in particle ``m`` from sighting ``z`` (lines 6–8 of table 13.1); its slot, or -1 if full."""
+    k = P.n[m]
+    if k >= P.mu.shape[1]:
+        return -1
+    ekf_initialise(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k])
+    P.ident[m, k] = ident
+    P.seen[m, k] = 1
+    P.missed[m, k] = 0
+    P.last_t[m, k] = t
+    P.n[m] = k + 1
+    return k
+
+
+@njit(cache=True)
+def remove_landmark(P, m, k):
+    """Remove landmark ``k`` of particle ``m``: the last landmark takes its slot."""
+    last = P.n[m] - 1
+    if k != last:
+        P.mu[m, k] = P.mu[m, last]
+        P.sigma[m, k] = P.sigma[m, last]
+        P.ident[m, k] = P.ident[m, last]
+        P.seen[m, k] = P.seen[m, last]
+        P.missed[m, k] = P.missed[m, last]
+        P.last_t[m, k] = P.last_t[m, last]
+    P.ident[m, last] = -1
+    P.n[m] = last
+
+
+@njit(cache=True)
+def in_view(pose, mu, rules):
+    """Whether a landmark at ``mu`` is inside the camera's field of view and range from ``pose``."""
+    r, phi, _, _, _, _ = expected_measurement(pose, mu)
+    return rules.min_range <= r <= rules.max_range and abs(phi) <= rules.fov
+
+
+@njit(cache=True)
+def negative_evidence(P, m, taken, rules):
+    """Count a miss for every landmark of particle ``m`` in view but not taken at this instant; remove the
+    provisional ones (seen < ``n_confirm``) whose misses exceed their sightings by ``max_misses``."""
+    k = 0
+    while k < P.n[m]:
+        if not taken[k] and in_view(P.poses[m], P.mu[m, k], rules):
+            P.missed[m, k] += 1
+            provisional = P.seen[m, k] < rules.n_confirm
+            if (provisional and P.missed[m, k] - P.seen[m, k] >= rules.max_misses) or (
+                    not provisional and P.missed[m, k] >= rules.miss_ratio * P.seen[m, k] + rules.max_misses):
+                taken[k] = taken[P.n[m] - 1]  # the last landmark moves into slot k
+                remove_landmark(P, m, k)
+                continue
+        k += 1
+
+
+@njit(cache=True)
+def associate_particle(P, m, instant, rules, next_ident, out, cloud):
+    """The sightings of one instant, ``instant = (z (n, 2), R (n, 2, 2), t)``, for particle ``m``: association,
+    update, weight, negative evidence. ``out`` (n,) receives the identity of the landmark each sighting went to
+    (-1: none); ``next_ident`` (1,) is the shared counter of new identities."""
+    z, R, t = instant
+    taken = np.zeros(P.mu.shape[1], dtype=np.bool_)
+    for i in range(z.shape[0]):
+        k, ll, d2 = best_landmark(P, m, z[i], R[i], taken, cloud, t, rules)
+        if k < 0 or d2 > rules.new_chi2:  # p0 wins: a landmark never seen before
+            log_p0 = new_landmark_loglik(R[i], rules.new_chi2)
+            k = add_landmark(P, m, z[i], R[i], next_ident[0], t)
+            P.logw[m] += log_p0
+            if k < 0:
+                out[i] = -1
+                continue
+            out[i] = next_ident[0]
+            next_ident[0] += 1
+        else:
+            beta = 1.0 if rules.tau <= 0.0 else min(1.0, (t - P.last_t[m, k]) / rules.tau)
+            ll = ekf_update(P.poses[m], z[i], R[i], P.mu[m, k], P.sigma[m, k], math.inf)[1]
+            if P.seen[m, k] < rules.n_confirm and rules.provisional_as_new:
+                ll = new_landmark_loglik(R[i], rules.new_chi2)  # a provisional landmark explains nothing yet
+            P.logw[m] += beta * ll
+            P.seen[m, k] += 1
+            P.last_t[m, k] = t
+            out[i] = P.ident[m, k]
+        if rules.exclusive:
+            taken[k] = True
+    if not rules.exclusive:
+        for i in range(z.shape[0]):  # the landmarks that were assigned a sighting
+            for k in range(P.n[m]):
+                if P.ident[m, k] == out[i]:
+                    taken[k] = True
+    negative_evidence(P, m, taken, rules)
+
+
+@njit(cache=True)
+def pose_covariance(poses, w):
+    """The weighted covariance (3, 3) of the particles' poses (headings about their circular mean)."""
+    mean = np.zeros(3)
+    weighted_mean_pose(poses, w, mean)
+    cov = np.zeros((3, 3))
+    e = np.empty(3)
+    for m in range(poses.shape[0]):
+        e[0], e[1] = poses[m, 0] - mean[0], poses[m, 1] - mean[1]
+        e[2] = wrap_one(poses[m, 2] - mean[2])
+        for u in range(3):
+            for v in range(3):
+                cov[u, v] += w[m] * e[u] * e[v]
+    return cov
+
+
+@njit(cache=True)
+def select_maps(P, idx):
+    """Resampling: particles ``idx`` replace the set (maps copied), log weights 0."""
+    P.poses[:] = P.poses[idx]
+    P.mu[:] = P.mu[idx]
+    P.sigma[:] = P.sigma[idx]
+    P.n[:] = P.n[idx]
+    P.ident[:] = P.ident[idx]
+    P.seen[:] = P.seen[idx]
+    P.missed[:] = P.missed[idx]
+    P.last_t[:] = P.last_t[idx]
+    P.logw[:] = 0.0
+
+
+# ---------------------------------------------------------------- the run over a log
+
+
+class AssociationRecord(NamedTuple):
+    """What :func:`run_unknown_segments` writes: ``w`` (M,) weights; ``pose_mean``, ``pose_best`` (N, 3);
+    ``assoc`` (M, n): the identity each particle gave each sighting; ``parents`` (I, M): after instant ``q``,
+    particle ``m`` descends from ``parents[q, m]``; ``instant_of`` (n,): the instant of each sighting;
+    ``next_ident`` (1,); ``totals`` (3,): measurement instants, resamples, landmarks created."""
+
+    w: np.ndarray
+    pose_mean: np.ndarray
+    pose_best: np.ndarray
+    assoc: np.ndarray
+    parents: np.ndarray
+    instant_of: np.ndarray
+    next_ident: np.ndarray
+    totals: np.ndarray
+
+
+@njit(cache=True)
+def run_unknown_segments(P, L, s, rules, segments, rng, out):
+    """Steps 1–4 over ``segments`` (S, 2) with unknown correspondences.
+
+    ``L``: the stream (:class:`fastslam_edu.landmark.fastslam_step.Log`; its ``j`` is never read), ``s``: the
+    motion noise and resampling settings (:class:`fastslam_edu.landmark.fastslam_step.Settings`), ``rules``
+    (:class:`Rules`), ``out``: :class:`AssociationRecord`.
+    """
+    M = P.poses.shape[0]
+    w = out.w
+    for r in range(segments.shape[0]):
+        first, last = segments[r, 0], segments[r, 1]
+        a, b = L.offsets[last], L.offsets[last + 1]
+        measured = b > a
+        n_record = last - first + (0 if measured else 1)
+        eps = np.empty((M, last - first + 1, s.n_draws))
+        standard_normals(rng, eps)
+        sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, w,
+                       out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
+        if not measured:
+            continue
+        q = out.totals[0]
+        before = out.next_ident[0]
+        cloud = pose_covariance(P.poses, w) * rules.pose_scale
+        for m in range(M):
+            associate_particle(P, m, (L.z[a:b], L.R[a:b], L.t[last]), rules, out.next_ident, out.assoc[m, a:b],
+                               cloud)
+        out.totals[2] += out.next_ident[0] - before
+        out.instant_of[a:b] = q
+        n_eff = normalise_weights(P.logw, w)
+        for m in range(M):
+            out.parents[q, m] = m
+        if s.resample_threshold >= 1.0 or n_eff < s.resample_threshold * M:
+            idx = resampling_indices(w, rng, s.resampler)
+            select_maps(P, idx)
+            out.parents[q] = idx
+            w[:] = 1.0 / M
+            out.totals[1] += 1
+        out.totals[0] += 1
+        weighted_mean_pose(P.poses, w, out.pose_mean[last])
+        out.pose_best[last] = P.poses[np.argmax(w)]
+
+
+def best_history(assoc: np.ndarray, parents: np.ndarray, instant_of: np.ndarray, m: int) -> np.ndarray:
+    """The association history of final particle ``m``: the identity its ancestors gave each sighting (n,)."""
+    out = np.full(assoc.shape[1], -1, dtype=np.int64)
+    order = np.argsort(instant_of, kind="stable")
+    bounds = np.searchsorted(instant_of[order], np.arange(parents.shape[0] + 1))
+    for q in range(parents.shape[0] - 1, -1, -1):
+        m = int(parents[q, m])
+        rows = order[bounds[q]:bounds[q + 1]]
+        out[rows] = assoc[m, rows]
+    return out
+
+
+@dataclass
+class AssociationResult:
+    """What a run with unknown correspondences produces.
+
+    t, pose_mean, pose_best (N,), (N, 3): as FastSLAM's result. ``landmarks`` (L, 2), ``landmarks_cov``
+    (L, 2, 2), ``landmark_ident`` (L,), ``landmark_seen`` (L,): the map of the highest-weight particle
+    at the end, its confirmed landmarks only (seen ``n_confirm`` times or more). ``history`` (n,): the
+    identity that particle (through its ancestors) gave each sighting of the stream (-1: none).
+    ``n_provisional``: its landmarks still provisional at the end. ``particles``: the final set.
+    """
+
+    t: np.ndarray
+    pose_mean: np.ndarray
+    pose_best: np.ndarray
+    landmarks: np.ndarray
+    landmarks_cov: np.ndarray
+    landmark_ident: np.ndarray
+    landmark_seen: np.ndarray
+    history: np.ndarray
+    n_provisional: int
+    landmarks_created: int
+    n_resamples: int
+    filter_seconds: float
+    particles: MapParticles
+    params: AssociationParams
+
+
+def run_unknown(stream: EventStream, params: AssociationParams = AssociationParams(), rng=0, *,
+                x0=None) -> AssociationResult:
+    """Run FastSLAM 1.0 with unknown correspondences over ``stream``.
+
+    Only the stream's times, commands and sightings ``z`` are used: ``stream.landmark`` (the identities)
+    is never read. ``x0``: the initial pose (default ``stream.x0``).
+    """
+    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    x0 = stream.x0 if x0 is None else np.asarray(x0, dtype=float)
+    if x0 is None:
+        raise ValueError("no initial pose: the stream has no groundtruth; pass x0=(x, y, theta)")
+    if len(stream) == 0:
+        raise ValueError("the event stream is empty")
+    fp = params.filter
+    M = fp.n_particles
+    P = initial_particles(M, params.max_landmarks, x0)
+    u, dt = stream_commands(stream, fp)
+    z = np.ascontiguousarray(np.asarray(stream.z, dtype=float).reshape(-1, 2))
+    R = np.ascontiguousarray(fp.measurement_covariance(z))
+    offsets = np.asarray(stream.offsets, dtype=np.int64)
+    n, N = len(z), len(stream)
+    n_instants = int(np.count_nonzero(np.diff(offsets)))
+    rules = params.rules()
+    log = Log(np.asarray(stream.t, dtype=float), u, dt, offsets, z, np.zeros(n, dtype=np.int64), R)  # no identities
+    settings = Settings(fp.motion_noise.densities, fp.motion_noise.n_draws, math.inf, math.inf, 0.0, True,
+                        float(fp.resample_threshold), RESAMPLER_CODES[fp.resampler])
+    out = AssociationRecord(np.full(M, 1.0 / M), np.empty((N, 3)), np.empty((N, 3)), np.full((M, n), -1, dtype=np.int64),
+                            np.empty((n_instants, M), dtype=np.int64), np.zeros(n, dtype=np.int64),
+                            np.zeros(1, dtype=np.int64), np.zeros(3, dtype=np.int64))
+    segments = np.array(list(_segments(stream)), dtype=np.int64).reshape(-1, 2)
+    t0 = time.perf_counter()
+    run_unknown_segments(P, log, settings, rules, segments, rng, out)
+    w, pose_mean, pose_best, totals = out.w, out.pose_mean, out.pose_best, out.totals
+    assoc, parents, instant_of = out.assoc, out.parents, out.instant_of
+    seconds = time.perf_counter() - t0
+    best = int(np.argmax(w))
+    k = np.arange(P.n[best])
+    keep = k[P.seen[best, k] >= params.n_confirm]
+    return AssociationResult(
+        t=np.asarray(stream.t, dtype=float), pose_mean=pose_mean, pose_best=pose_best,
+        landmarks=P.mu[best, keep].copy(), landmarks_cov=P.sigma[best, keep].copy(),
+        landmark_ident=P.ident[best, keep].copy(), landmark_seen=P.seen[best, keep].copy(),
+        history=best_history(assoc, parents, instant_of, best), n_provisional=int(len(k) - len(keep)),
+        landmarks_created=int(totals[2]), n_resamples=int(totals[1]), filter_seconds=seconds, particles=P,
+        params=params)
+
+
+__all__ = ["AssociationParams", "AssociationResult", "MapParticles", "Rules", "initial_particles",
+           "new_landmark_loglik", "best_landmark", "add_landmark", "remove_landmark", "in_view",
+           "negative_evidence", "associate_particle", "select_maps", "AssociationRecord", "run_unknown_segments",
+           "best_history",
+           "run_unknown"]

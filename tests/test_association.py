@@ -1,0 +1,212 @@
+"""FastSLAM with unknown correspondences (fastslam_edu.landmark.association) and its scores
+(fastslam_edu.evaluation.association), on simulated data with known truth only."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from fastslam_edu.core.measurement import range_bearing
+from fastslam_edu.datasets.events import event_stream
+from fastslam_edu.datasets.mrclam import write_dataset
+from fastslam_edu.datasets.sim import simulate_dataset
+from fastslam_edu.evaluation import association as score
+from fastslam_edu.evaluation.metrics import landmark_errors_aligned
+from fastslam_edu.landmark.association import (AssociationParams, associate_particle, best_history,
+                                                initial_particles, new_landmark_loglik, run_unknown)
+from fastslam_edu.landmark.fastslam import FastSLAMParams
+
+#: The simulator's sensor (σ_r 5 cm, σ_φ 0.02 rad), told to the filter as it is.
+SIM_FILTER = FastSLAMParams(n_particles=30, measurement_cov=np.diag([0.05**2, 0.02**2]), range_std_slope=0.0)
+R = np.diag([0.05**2, 0.02**2])
+RULES = AssociationParams(filter=SIM_FILTER.replace(measurement_correlation_s=None), new_landmark_chi2=16.0,
+                          fov=0.5, min_range=0.3, max_range=5.0, n_confirm=5, max_misses=3, drift_xy=0.0,
+                          drift_theta=0.0, confirmed_miss_ratio=math.inf).rules()
+
+
+@pytest.fixture(scope="module")
+def sim_run():
+    data = simulate_dataset(0, duration=120.0)
+    stream = event_stream(data.robots[1], data.landmark_subjects)
+    result = run_unknown(stream, AssociationParams(filter=SIM_FILTER), 0)
+    return data, stream, result
+
+
+def test_known_truth_simulation_map_and_associations(sim_run):
+    """The filter never sees the identities, yet the map it builds matches the true landmarks one to one, and
+    nearly every sighting went to the landmark of its true subject."""
+    data, stream, result = sim_run
+    truth = data.landmark_positions
+    match = score.match_landmarks(result.landmarks, truth)
+    seen_truth = np.unique(stream.landmark)
+    accuracy = score.association_accuracy(result.history, stream.landmark, result.landmark_ident, match)
+    assert accuracy > 0.9
+    assert score.landmarks_spurious(result.landmarks, truth) <= 2
+    assert set(match[match >= 0]) >= set(seen_truth[np.bincount(stream.landmark)[seen_truth] >= 20])
+    estimate = np.full(truth.shape, np.nan)
+    estimate[match[match >= 0]] = result.landmarks[match >= 0]
+    err = landmark_errors_aligned(estimate, truth, ~np.isnan(estimate[:, 0]))
+    assert np.nanmean(err) < 0.15
+
+
+def test_history_ends_with_the_map_identities(sim_run):
+    """Every map landmark's identity occurs in the best particle's history as often as it was seen."""
+    _, _, result = sim_run
+    for ident, seen in zip(result.landmark_ident, result.landmark_seen):
+        assert np.sum(result.history == ident) == seen
+
+
+def test_same_seed_same_numbers(sim_run):
+    data, stream, result = sim_run
+    again = run_unknown(stream, AssociationParams(filter=SIM_FILTER), 0)
+    np.testing.assert_array_equal(again.history, result.history)
+    np.testing.assert_array_equal(again.landmarks, result.landmarks)
+    np.testing.assert_array_equal(again.pose_mean, result.pose_mean)
+    other = run_unknown(stream, AssociationParams(filter=SIM_FILTER), 1)
+    assert not np.array_equal(other.pose_mean, result.pose_mean)
+
+
+def one_particle(landmarks=(), seen=5):
+    """One particle at the origin facing +x, holding ``landmarks`` (Σ = (5 cm)² I), each seen ``seen`` times."""
+    P = initial_particles(1, 8, [0.0, 0.0, 0.0])
+    for k, m in enumerate(landmarks):
+        P.mu[0, k] = m
+        P.sigma[0, k] = np.eye(2) * 0.05**2
+        P.ident[0, k] = 100 + k
+        P.seen[0, k] = seen
+    P.n[0] = len(landmarks)
+    return P
+
+
+def sight(P, points, rules=RULES, t=1.0):
+    z = range_bearing(np.zeros(3), np.asarray(points, dtype=float).reshape(-1, 2))
+    out = np.full(len(z), -2, dtype=np.int64)
+    counter = np.array([7], dtype=np.int64)
+    associate_particle(P, 0, (z, np.repeat(R[None], len(z), axis=0), t), rules, counter, out, np.zeros((3, 3)))
+    return out, counter[0]
+
+
+def test_new_landmark_when_p0_wins():
+    """A sighting 1 m from the only landmark: p0 beats its likelihood, a second landmark is made and the weight
+    grows by log p0. A sighting on the landmark: updated, no new landmark."""
+    P = one_particle([(2.0, 0.0)])
+    out, counter = sight(P, [(2.0, 1.0)])
+    assert P.n[0] == 2 and out[0] == 7 and counter == 8
+    np.testing.assert_allclose(P.mu[0, 1], (2.0, 1.0), atol=1e-12)
+    assert P.logw[0] == pytest.approx(new_landmark_loglik(R, 16.0))
+    assert new_landmark_loglik(R, 16.0) == pytest.approx(-8.0 - math.log(2 * math.pi) - 0.5 * math.log(np.linalg.det(2 * R)))
+    out, _ = sight(P, [(2.02, 0.0)])
+    assert P.n[0] == 2 and out[0] == 100 and P.seen[0, 0] == 6
+
+
+def test_mutual_exclusion_within_an_instant():
+    """Two sightings near one landmark in one frame: with exclusion the second cannot take it too."""
+    P = one_particle([(2.0, 0.0)])
+    out, _ = sight(P, [(2.0, 0.0), (2.05, 0.02)])
+    assert out[0] == 100 and out[1] == 7 and P.n[0] == 2
+    P = one_particle([(2.0, 0.0)])
+    out, _ = sight(P, [(2.0, 0.0), (2.05, 0.02)], RULES._replace(exclusive=False))
+    assert out.tolist() == [100, 100] and P.n[0] == 1
+
+
+def test_provisional_landmark_removed_by_negative_evidence():
+    """A landmark seen once, in view, missed while another is seen: removed after max_misses + 1 misses; a
+    confirmed landmark in the same place is kept, and one out of view is never missed."""
+    P = one_particle([(3.0, 0.0), (2.0, 1.0), (-2.0, 0.0)], seen=1)
+    P.seen[0, 0] = 10  # the one that is seen
+    P.seen[0, 2] = 1
+    for i in range(RULES.max_misses + 1):
+        assert P.n[0] == 3
+        sight(P, [(3.0, 0.0)], t=1.0 + i)
+    assert P.n[0] == 2
+    assert sorted(P.ident[0, :2].tolist()) == [100, 102]  # the provisional one in view went; the one behind stays
+    P = one_particle([(3.0, 0.0), (2.0, 1.0)], seen=10)
+    for i in range(10):
+        sight(P, [(3.0, 0.0)], t=1.0 + i)
+    assert P.n[0] == 2 and P.seen[0, 1] == 10
+
+
+def test_oracle_scorer_on_a_constructed_case():
+    """Two landmarks 0.18 m apart seen from 3 m: at the true pose, along the line of sight (range noise 0.2 m)
+    the oracle cannot tell them apart, across it (bearing) it can."""
+    landmarks = np.array([[3.0, 0.0], [3.18, 0.0], [0.0, 3.0], [0.0, 3.18]])
+    pose = np.zeros(3)
+    R_wide = np.diag([0.2**2, 0.01**2])
+    # exact sightings of each landmark: the oracle is right every time
+    z = range_bearing(pose, landmarks)
+    poses = np.tile(pose, (4, 1))
+    Rs = np.repeat(R_wide[None], 4, axis=0)
+    assert score.association_accuracy_oracle(poses, z, Rs, landmarks, [0, 1, 2, 3]) == 1.0
+    # a sighting of landmark 1 read 0.15 m short: nearer landmark 0 in range, which the oracle picks
+    z_short = z[1] - [0.15, 0.0]
+    assert score.oracle_association(pose[None], z_short[None], R_wide, landmarks).tolist() == [0]
+    # seen from the side (pose at (3.09, -3)), the pair is apart in bearing: 0.18 m / 3 m = 0.06 rad = 6 σ
+    side = np.array([3.09, -3.0, math.pi / 2])
+    z_side = range_bearing(side, landmarks[1]) - [0.15, 0.0]
+    assert score.oracle_association(side[None], z_side[None], R_wide, landmarks).tolist() == [1]
+    # clutter (-1) is not scored
+    assert score.association_accuracy_oracle(np.vstack([poses, pose]), np.vstack([z, z_short]),
+                                             np.repeat(R_wide[None], 5, axis=0), landmarks, [0, 1, 2, 3, -1]) == 1.0
+    assert score.association_accuracy_oracle(np.vstack([poses, pose]), np.vstack([z, z_short]),
+                                             np.repeat(R_wide[None], 5, axis=0), landmarks, [0, 1, 2, 3, 1]) == 0.8
+
+
+def test_matching_and_accuracy_on_a_constructed_case():
+    truth = np.array([[0.0, 0.0], [5.0, 0.0], [0.0, 5.0]])
+    estimate = np.array([[5.1, 0.0], [0.05, 0.0], [10.0, 10.0], [0.0, 5.5]])
+    match = score.match_landmarks(estimate, truth)
+    assert match.tolist() == [1, 0, -1, 2]
+    assert score.landmarks_spurious(estimate, truth) == 1 and score.landmarks_in_map(estimate) == 4
+    ident = np.array([11, 12, 13, 14])
+    history = np.array([12, 12, 11, 13, 14, 99, -1, 11])
+    true = np.array([0, 0, 1, 1, 2, 2, -1, -1])  # the last two are clutter: not scored
+    assert score.association_accuracy(history, true, ident, match) == pytest.approx(4 / 6)
+
+
+def test_best_history_follows_the_ancestors():
+    """Two instants of one sighting each, two particles; after the first instant particle 1 descends from 0."""
+    assoc = np.array([[5, 8], [6, 9]])
+    parents = np.array([[0, 0], [0, 1]])
+    instant_of = np.array([0, 1])
+    assert best_history(assoc, parents, instant_of, 1).tolist() == [5, 9]
+    assert best_history(assoc, parents, instant_of, 0).tolist() == [5, 8]
+
+
+@pytest.fixture(scope="module")
+def sim_folder(tmp_path_factory):
+    data = simulate_dataset(4, duration=30.0, n_robots=2)
+    return write_dataset(data, tmp_path_factory.mktemp("sim") / "MRCLAM_Sim")
+
+
+def test_cli_unknown_correspondences(sim_folder, tmp_path, capsys):
+    """``--correspondences unknown``: the other robot's sightings are clutter given to the filter; the JSON has the
+    association figures; with ``--filter ekf`` it is refused in one line."""
+    from fastslam_edu.app.cli import main
+
+    out = tmp_path / "u.json"
+    code = main(["run", "--data", str(sim_folder), "--robot", "1", "--particles", "20", "--quiet",
+                 "--correspondences", "unknown", "--json", str(out)])
+    assert code == 0
+    s = json.loads(out.read_text())
+    for key in ("association_accuracy", "association_accuracy_oracle", "landmarks_in_map", "landmarks_spurious",
+                "landmark_error_mean_m", "landmark_error_aligned_mean_m", "path_rmse_m"):
+        assert key in s
+    assert s["correspondences"] == "unknown" and s["sightings"] == s["landmark_sightings"] + s["clutter_sightings"]
+    assert 0.0 <= s["association_accuracy"] <= 1.0 and 0.0 <= s["association_accuracy_oracle"] <= 1.0
+    assert s["association_accuracy_oracle"] > 0.9
+    capsys.readouterr()
+    code = main(["run", "--data", str(sim_folder), "--robot", "1", "--filter", "ekf", "--correspondences", "unknown"])
+    err = capsys.readouterr().err
+    assert code != 0 and "unknown" in err and len(err.strip().splitlines()) == 1
+
+
+def test_association_table_counts_merged_and_split():
+    ident = np.array([11, 12, 13])
+    history = np.array([11, 11, 11, 11, 12, 12, 13, 13, 13, -1, 11])
+    true = np.array([0, 0, 1, 1, 2, 2, 2, 2, 2, 0, -1])
+    table = score.association_table(history, true, ident, 3)
+    assert table.tolist() == [[2, 2, 0, 1], [0, 0, 2, 0], [0, 0, 3, 0]]
+    assert score.merged_and_split(table) == (1, 1)
