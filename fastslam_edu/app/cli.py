@@ -183,11 +183,7 @@ def cmd_run_ekf(args) -> int:
     result, summary, ctx = run_mrclam_ekf(args.data, args.robot, rate=args.rate, x0=args.x0,
                                           groundtruth_file=args.groundtruth, audit=not args.no_audit)
     summary.update(filter="ekf", seed=args.seed)
-    for note in summary["notes"]:
-        print(f"note: {note}", file=sys.stderr)
-    _print_rows([(k, summary.get(k)) for k in RUN_KEYS])
-    if args.json:
-        args.json.write_text(json.dumps(summary, indent=2))
+    _report(summary, RUN_KEYS, args.json)
     if args.plot:
         _ekf_figure(result, ctx, f"{args.data.name} robot {args.robot}, EKF-SLAM").savefig(args.plot, dpi=120)
     return 0
@@ -246,11 +242,7 @@ def cmd_run_unknown(args) -> int:
     result, summary, ctx = run_mrclam_unknown(args.data, args.robot, params, args.seed, rate=args.rate, x0=args.x0,
                                               groundtruth_file=args.groundtruth, audit=not args.no_audit)
     summary["filter"] = "fastslam"
-    for note in summary["notes"]:
-        print(f"note: {note}", file=sys.stderr)
-    _print_rows([(k, summary.get(k)) for k in UNKNOWN_KEYS])
-    if args.json:
-        args.json.write_text(json.dumps(summary, indent=2))
+    _report(summary, UNKNOWN_KEYS, args.json)
     if args.plot:
         import matplotlib
 
@@ -268,6 +260,15 @@ def cmd_run_unknown(args) -> int:
         fig.savefig(args.plot, dpi=120)
         plt.close(fig)
     return 0
+
+
+def _report(summary: dict, keys, json_path) -> None:
+    """The run's notes on stderr, its figures ``keys`` as a table, and the whole summary as JSON if asked."""
+    for note in summary["notes"]:
+        print(f"note: {note}", file=sys.stderr)
+    _print_rows([(k, summary.get(k)) for k in keys])
+    if json_path:
+        json_path.write_text(json.dumps(summary, indent=2))
 
 
 def cmd_run(args) -> int:

@@ -116,9 +116,14 @@ def summarize_smoother(result: SmootherResult, dataset: Dataset, log: RobotLog) 
     }
     out.update(score_estimate(result.t, result.poses, result.landmarks, result.observed,
                               result.landmark_subjects, dataset, log))
-    sd = np.sqrt(np.trace(result.landmarks_cov[result.observed], axis1=1, axis2=2))
-    out["landmark_std_mean_m"] = float(sd.mean()) if sd.size else None
+    out["landmark_std_mean_m"] = landmark_std_mean(result.landmarks_cov, result.observed)
     return out
+
+
+def landmark_std_mean(cov, observed) -> float | None:
+    """Mean over the observed landmarks of :math:`\\sqrt{\\mathrm{tr}\\,\\Sigma_k}` [m] (None if none observed)."""
+    sd = np.sqrt(np.trace(cov[observed], axis1=1, axis2=2))
+    return float(sd.mean()) if sd.size else None
 
 
 def score_estimate(t, poses, landmarks, observed, landmark_subjects, dataset: Dataset, log: RobotLog) -> dict:
@@ -269,8 +274,7 @@ def summarize_ekf(result: EKFSLAMResult, dataset: Dataset, log: RobotLog) -> dic
     }
     out.update(score_estimate(result.t, result.pose_mean, result.landmarks_mean, result.observed,
                               result.landmark_subjects, dataset, log))
-    sd = np.sqrt(np.trace(result.landmarks_cov[result.observed], axis1=1, axis2=2))
-    out["landmark_std_mean_m"] = float(sd.mean()) if sd.size else None
+    out["landmark_std_mean_m"] = landmark_std_mean(result.landmarks_cov, result.observed)
     return out
 
 
