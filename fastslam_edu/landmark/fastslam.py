@@ -56,7 +56,8 @@ from scipy.stats import chi2
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.landmark.fastslam_step import (RESAMPLER_CODES, Log, Particles, Record, Settings, Sightings,
-                                                 normalise_weights, run_segments, sample_segment, standard_normals,
+                                                 gate_escapes, gate_record, normalise_weights, run_segments,
+                                                 sample_segment, standard_normals, tempering_exponents,
                                                  update_particles, weighted_mean_pose)
 from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.core.params import Params
@@ -461,11 +462,9 @@ def evidence_fractions(t, landmarks, last_seen, tau: float | None) -> np.ndarray
 
     Returns ``beta`` (n,) for ``landmarks`` (n,).
     """
-    landmarks = np.asarray(landmarks, dtype=int)
-    if tau is None:
-        return np.ones(len(landmarks))
-    beta = np.minimum(1.0, (t - last_seen[landmarks]) / tau)
-    last_seen[landmarks] = t
+    landmarks = _landmark_indices(landmarks)
+    beta = np.empty(len(landmarks))
+    tempering_exponents(float(t), landmarks, last_seen, 0.0 if tau is None else float(tau), beta)
     return beta
 
 
@@ -666,13 +665,21 @@ class Gate:
         self.unexplained_since = np.full(n_landmarks, np.inf)
 
     def escaped(self, t: float, landmarks) -> np.ndarray:
-        """Bool (n,): the sightings of ``landmarks`` (n,) at time ``t`` that skip the gate."""
-        return t - self.unexplained_since[landmarks] >= self.escape_s
+        """Bool (n,): the sightings of ``landmarks`` (n,) at time ``t`` that skip the gate (:func:`gate_escapes`)."""
+        j = _landmark_indices(landmarks)
+        escape = np.empty(len(j), dtype=bool)
+        gate_escapes(float(t), j, self.unexplained_since, self.escape_s, escape)
+        return escape
 
     def record(self, t: float, landmarks, explained) -> None:
-        """Note which sightings at ``t`` some particle explained (``explained`` (n,) bool)."""
-        since = self.unexplained_since[landmarks]
-        self.unexplained_since[landmarks] = np.where(explained, np.inf, np.minimum(since, t))
+        """Note which sightings at ``t`` some particle explained (``explained`` (n,) bool; :func:`gate_record`)."""
+        gate_record(float(t), _landmark_indices(landmarks), np.asarray(explained, dtype=bool).reshape(-1),
+                    self.unexplained_since)
+
+
+def _landmark_indices(landmarks) -> np.ndarray:
+    """Landmark indices as the compiled kernels take them: int64, shape (n,)."""
+    return np.asarray(landmarks, dtype=np.int64).reshape(-1)
 
 
 class Hook:
