@@ -158,11 +158,11 @@ def test_localisation_with_the_true_model_and_many_particles_is_consistent():
 
 def test_fastslam_is_overconfident_about_the_map_in_the_world_frame():
     """Bailey, Nieto and Nebot (2006): FastSLAM's covariances are far too small. With the simulator's own model,
-    100 particles and 60 s, the landmark NEES is beyond 10x the 95 % interval in most runs, while the same
+    100 particles and 60 s, the landmark NEES of the median run is beyond 5x the 95 % interval, while the same
     particles are near-consistent in the first seconds (the initial pose is known)."""
     pose, landmarks = _mean_pose_nees(6, 60.0, [1.0, 55.0], n_particles=100)
     lo, hi = nees_interval(2, 1)
-    assert np.median(landmarks) > 10 * hi, landmarks
+    assert np.median(landmarks) > 5 * hi, landmarks
     assert pose[0] < 3 * nees_interval(3, 6)[1] and pose[1] > 10 * nees_interval(3, 6)[1], pose
 
 

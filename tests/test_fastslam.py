@@ -358,24 +358,27 @@ def test_gate_rejects_the_injected_outliers():
     """outlier_prob = 0.05: a range + U(0.5, 2) m, i.e. > 7σ of Q's range part.
 
     Seed 2: 45 outliers, none at a landmark's first sighting (see the xfail
-    test below for that case). Measured: 48 rejections; landmark error 0.035 m
-    with the gate, 0.20 m without.
+    test below for that case). The gate rejects about as many sightings as were
+    injected, and over five filter seeds it halves the median landmark error
+    (about 0.09 m with the gate, 0.18 m without, when this was written).
     """
     data, log, stream = simulate(2, outlier_prob=0.05)
     out = injected_outliers(data, log)
     first = ~log.measurements.duplicated("subject").to_numpy()
     assert out.sum() >= 20 and not (out & first).any()  # the precondition of this test
-    on = run_fastslam(stream, MATCHED, 0)
-    off = run_fastslam(stream, dataclasses.replace(MATCHED, gate_chi2=None), 0)
-    assert off.measurements_rejected == 0
-    assert off.measurements_used == stream.n_measurements
-    assert on.measurements_used + on.measurements_rejected == stream.n_measurements
-    assert abs(on.measurements_rejected - int(out.sum())) <= max(5, 0.15 * out.sum())
     truth = data.landmark_positions
-    e_on = np.nanmean(landmark_errors(on.landmarks_mean, truth, on.observed))
-    e_off = np.nanmean(landmark_errors(off.landmarks_mean, truth, off.observed))
-    assert e_on <= e_off
-    assert e_on < 0.1
+    e_on, e_off = [], []
+    for seed in range(5):
+        on = run_fastslam(stream, MATCHED, seed)
+        off = run_fastslam(stream, dataclasses.replace(MATCHED, gate_chi2=None), seed)
+        assert off.measurements_rejected == 0
+        assert off.measurements_used == stream.n_measurements
+        assert on.measurements_used + on.measurements_rejected == stream.n_measurements
+        assert abs(on.measurements_rejected - int(out.sum())) <= max(5, 0.15 * out.sum())
+        e_on.append(np.nanmean(landmark_errors(on.landmarks_mean, truth, on.observed)))
+        e_off.append(np.nanmean(landmark_errors(off.landmarks_mean, truth, off.observed)))
+    assert np.median(e_on) < 0.7 * np.median(e_off)
+    assert np.median(e_on) < 0.12
 
 
 def test_gate_rejects_few_good_measurements(sim2):
@@ -849,3 +852,36 @@ def test_compiled_run_equals_the_python_loop(resampler, threshold, mode, noise_o
     np.testing.assert_array_equal(compiled.ess, looped.ess)
     np.testing.assert_array_equal(compiled.particles.mu, looped.particles.mu)
     np.testing.assert_array_equal(compiled.particles.logw, looped.particles.logw)
+
+
+def test_a_hook_sees_every_resampling_decision_and_the_parents_drawn():
+    """Hook.after_resampling: called once per measurement step, with the parents drawn (None when N_eff was high
+    enough) and the set before step 3; the particles after it are exactly the parents' copies. A hook that keeps
+    the parents' log weights (the write-up's bug) changes the run."""
+    data, log, stream = simulate(7, duration=30.0)
+    params = FastSLAMParams(n_particles=30, motion_noise=SIM.odometry_noise, resample_threshold=0.5)
+
+    class Parents(fs.Hook):
+        def __init__(self, keep_weights=False):
+            self.calls, self.drawn, self.keep_weights = 0, 0, keep_weights
+
+        def after_resampling(self, run, parents, before):
+            self.calls += 1
+            if parents is None:
+                assert run.particles is before
+                return
+            self.drawn += 1
+            np.testing.assert_array_equal(run.particles.poses, before.poses[parents])
+            np.testing.assert_array_equal(run.particles.mu, before.mu[parents])
+            assert not run.particles.logw.any()
+            if self.keep_weights:
+                run.particles.logw = before.logw[parents].copy()
+
+    hook = Parents()
+    result = run_fastslam(stream, params, 3, hooks=[hook])
+    assert hook.calls == len(result.ess) == int(np.count_nonzero(np.diff(stream.offsets)))
+    assert hook.drawn == result.n_resamples > 0
+    plain = run_fastslam(stream, params, 3)
+    np.testing.assert_array_equal(plain.pose_mean, result.pose_mean)
+    buggy = run_fastslam(stream, params, 3, hooks=[Parents(keep_weights=True)])
+    assert np.abs(buggy.pose_mean - plain.pose_mean).max() > 1e-6

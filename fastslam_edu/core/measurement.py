@@ -174,23 +174,8 @@ def jacobian_pose(x, m) -> np.ndarray:
                  [ δy/r², -δx/r², -1]]     columns: x, y, θ
 
     Not needed by FastSLAM 1.0 (the pose is sampled, not linearised); used by
-    FastSLAM 2.0's proposal and for teaching.
-
-    Parameters
-    ----------
-    x : array_like, shape (..., 3)
-        Robot pose ``(x, y, θ)`` [m, m, rad].
-    m : array_like, shape (..., 2)
-        Landmark position [m], not equal to the robot position.
-
-    Returns
-    -------
-    ndarray, shape (..., 2, 3)
-
-    Raises
-    ------
-    ValueError
-        If a landmark lies exactly on the robot (``r = 0``).
+    FastSLAM 2.0's proposal and for teaching. ``x``, ``m`` and the error as
+    :func:`jacobian_landmark`; returns an ndarray of shape (..., 2, 3).
     """
     dx, dy, q, r = _offsets_and_range(x, m, "jacobian_pose")
     zero, one = np.zeros_like(r), np.ones_like(r)

@@ -52,12 +52,17 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from numba import njit
 
 __all__ = [
     "WEIGHT_SUM_TOLERANCE",
     "validate_weights",
     "cumulative_weights",
     "inverse_cdf",
+    "inverse_cdf_unchecked",
+    "roulette_positions",
+    "stratified_positions",
+    "systematic_positions",
     "roulette",
     "stratified",
     "systematic",
@@ -175,15 +180,35 @@ def inverse_cdf(u, w) -> np.ndarray:
     ndarray of intp, shape (n,)
         Indices in ``0 … M-1``.
     """
-    return _inverse_cdf(u, validate_weights(w))
+    return inverse_cdf_unchecked(np.asarray(u, dtype=float).reshape(-1), validate_weights(w))
 
 
-def _inverse_cdf(u, w: np.ndarray) -> np.ndarray:
-    """:func:`inverse_cdf` for weights already validated (the resamplers check them once)."""
-    c = cumulative_weights(w)
-    u = np.asarray(u, dtype=float)
-    u = np.minimum(np.maximum(u, 0.0), _BELOW_ONE)  # = np.clip(u, 0, _BELOW_ONE), with less overhead
+@njit(cache=True)
+def inverse_cdf_unchecked(u, w):
+    """:func:`inverse_cdf` for weights already validated, compiled: the resamplers here and the
+    filter's compiled run (:func:`fastslam_edu.landmark.fastslam_step.resampling_indices`) share it."""
+    c = np.cumsum(w)
+    c = c / c[-1]  # cumulative_weights
+    u = np.minimum(np.maximum(u, 0.0), _BELOW_ONE)
     return np.searchsorted(c, u, side="right")
+
+
+@njit(cache=True)
+def roulette_positions(n, rng):
+    """``n`` independent ``U[0, 1)`` positions, sorted (:func:`roulette`)."""
+    return np.sort(rng.random(n))
+
+
+@njit(cache=True)
+def stratified_positions(n, rng):
+    """``u_j = (j + U_j) / n``, one uniform per stratum (:func:`stratified`)."""
+    return (np.arange(n) + rng.random(n)) / n
+
+
+@njit(cache=True)
+def systematic_positions(n, rng):
+    """``u_j = (j + U) / n``, one uniform for all (:func:`systematic`)."""
+    return (np.arange(n) + rng.random()) / n
 
 
 def _check_rng(rng) -> None:
@@ -200,6 +225,13 @@ def _number_of_draws(n, m: int) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise ValueError(f"n (the number of draws) must be a positive integer, got {n!r}")
     return int(n)
+
+
+def _resample(w, rng, n, positions) -> np.ndarray:
+    """Check the arguments, draw the ``positions(n, rng)`` and return the :func:`inverse_cdf` of them."""
+    _check_rng(rng)
+    w = validate_weights(w)
+    return inverse_cdf_unchecked(positions(_number_of_draws(n, w.size), rng), w)
 
 
 def roulette(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
@@ -222,11 +254,7 @@ def roulette(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
     ndarray of intp, shape (n,)
         Sorted indices into ``0 … M-1``.
     """
-    _check_rng(rng)
-    w = validate_weights(w)
-    n = _number_of_draws(n, w.size)
-    u = np.sort(rng.random(n))
-    return _inverse_cdf(u, w)
+    return _resample(w, rng, n, roulette_positions)
 
 
 def stratified(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
@@ -236,24 +264,9 @@ def stratified(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
     ``j = 0 … n-1``: exactly one position falls in each ``[j/n, (j+1)/n)``.
     Unbiased, and ``Var[N_i]`` never exceeds the multinomial one.
 
-    Parameters
-    ----------
-    w : array_like, shape (M,)
-        Normalised weights.
-    rng : numpy.random.Generator
-    n : int, optional
-        Number of draws (default ``M``).
-
-    Returns
-    -------
-    ndarray of intp, shape (n,)
-        Sorted indices into ``0 … M-1``.
+    Arguments and result as :func:`roulette`.
     """
-    _check_rng(rng)
-    w = validate_weights(w)
-    n = _number_of_draws(n, w.size)
-    u = (np.arange(n) + rng.random(n)) / n
-    return _inverse_cdf(u, w)
+    return _resample(w, rng, n, stratified_positions)
 
 
 def systematic(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
@@ -264,24 +277,9 @@ def systematic(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
     ``⌊n w_i⌋`` or ``⌈n w_i⌉`` copies, the smallest possible spread; a set
     of equal weights is reproduced exactly. Needs a single random number.
 
-    Parameters
-    ----------
-    w : array_like, shape (M,)
-        Normalised weights.
-    rng : numpy.random.Generator
-    n : int, optional
-        Number of draws (default ``M``).
-
-    Returns
-    -------
-    ndarray of intp, shape (n,)
-        Sorted indices into ``0 … M-1``.
+    Arguments and result as :func:`roulette`.
     """
-    _check_rng(rng)
-    w = validate_weights(w)
-    n = _number_of_draws(n, w.size)
-    u = (np.arange(n) + rng.random()) / n
-    return _inverse_cdf(u, w)
+    return _resample(w, rng, n, systematic_positions)
 
 
 def residual(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
@@ -296,18 +294,7 @@ def residual(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
     indices with ``w_i - k_i`` instead of ``n w_i - k_i``: negative residuals
     for every particle with ``k_i ≥ 1``, and a biased result.)
 
-    Parameters
-    ----------
-    w : array_like, shape (M,)
-        Normalised weights.
-    rng : numpy.random.Generator
-    n : int, optional
-        Number of draws (default ``M``).
-
-    Returns
-    -------
-    ndarray of intp, shape (n,)
-        Sorted indices into ``0 … M-1``.
+    Arguments and result as :func:`roulette`.
     """
     _check_rng(rng)
     w = validate_weights(w)

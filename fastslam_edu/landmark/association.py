@@ -421,7 +421,7 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out):
         a, b = L.offsets[last], L.offsets[last + 1]
         measured = b > a
         n_record = last - first + (0 if measured else 1)
-        eps = np.empty((M, last - first + 1, s.n_draws))
+        eps = np.empty((last - first + 1, s.n_draws, M))
         standard_normals(rng, eps)
         sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, w,
                        out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])

@@ -310,17 +310,19 @@ def propagate(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.
         set to the poses after the last step.
     """
     u, dt = np.atleast_2d(np.asarray(u, dtype=float)), np.atleast_1d(np.asarray(dt, dtype=float))
-    eps = draw_normals(rng, (len(particles), len(dt), noise.n_draws))
-    path = move_segment(particles.poses, u, dt, noise, eps)
+    eps = draw_normals(rng, len(particles), len(dt), noise.n_draws)
+    path = move_segment(particles.poses, u, dt, noise, eps.transpose(2, 0, 1))
     particles.poses = path[:, -1].copy()
     return path
 
 
-def draw_normals(rng: np.random.Generator, shape) -> np.ndarray:
-    """``rng.standard_normal(shape)``, the same numbers, drawn by the compiled loop when there are many."""
-    if math.prod(shape) < 4096:
-        return rng.standard_normal(shape)
-    out = np.empty(shape)
+def draw_normals(rng: np.random.Generator, m: int, n_steps: int, k: int) -> np.ndarray:
+    """The numbers of ``rng.standard_normal((m, n_steps, k))``, stored step by step: (n_steps, k, m), as
+    :func:`fastslam_edu.landmark.fastslam_step.sample_segment` reads them (drawn by the compiled loop when
+    there are many)."""
+    if m * n_steps * k < 4096:
+        return np.ascontiguousarray(rng.standard_normal((m, n_steps, k)).transpose(1, 2, 0))
+    out = np.empty((n_steps, k, m))
     standard_normals(rng, out)
     return out
 
@@ -352,7 +354,7 @@ def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np
     n = len(dt) if n_record is None else n_record
     mean, best = np.empty((n, 3)), np.empty((n, 3))
     particles.poses = np.array(particles.poses, dtype=float)  # a private copy, moved in place
-    sample_segment(particles.poses, u, dt, noise.densities, draw_normals(rng, (len(particles), len(dt), noise.n_draws)),
+    sample_segment(particles.poses, u, dt, noise.densities, draw_normals(rng, len(particles), len(dt), noise.n_draws),
                    w, mean, best)
     return mean, best
 
@@ -477,11 +479,20 @@ def resample_if_needed(
     weights are uniform (the evidence is now in the particle counts — keeping
     the old weights as well would count it twice).
     """
+    parents, n_eff = draw_parents(particles, resampler, threshold, rng)
+    if parents is None:
+        return particles, n_eff, False
+    return particles.select(parents), n_eff, True
+
+
+def draw_parents(particles: ParticleSet, resampler: str, threshold: float, rng: np.random.Generator):
+    """The decision of step 3: ``(parents, N_eff)``, the indices the resampler draws (M,), or None when
+    :math:`N_\\text{eff} \\ge \\text{threshold}\\cdot M` (``threshold`` 1.0: always draw)."""
     w = np.empty(len(particles))
     n_eff = normalise_weights(np.asarray(particles.logw, dtype=float), w)  # and N_eff = 1 / Σ w²
     if threshold >= 1.0 or n_eff < threshold * len(particles):  # 1.0: at every call (the write-up)
-        return particles.select(get_resampler(resampler)(w, rng)), n_eff, True
-    return particles, n_eff, False
+        return get_resampler(resampler)(w, rng), n_eff
+    return None, n_eff
 
 
 def combined_pose(poses, w) -> np.ndarray:
@@ -686,14 +697,21 @@ class Hook:
     """Something run alongside the filter, without changing it unless that is its purpose.
 
     ``after_motion(run, s, e)`` is called after step 1 of each segment of steps
-    ``s..e``; ``after_step(run, s, e)`` after the whole step (with ``run.measured``
-    True when it had sightings); ``close(run)`` at the end. ``cut_times``: times at
-    which a segment must end (a hook that acts at a time).
+    ``s..e``; ``after_resampling(run, parents, before)`` after step 3 at each
+    measurement step, with the indices drawn (``parents`` (M,): particle ``m``
+    is a copy of ``before``'s ``parents[m]``; None when :math:`N_\text{eff}` was
+    high enough) and the set as it was before; ``after_step(run, s, e)`` after the
+    whole step (with ``run.measured`` True when it had sightings); ``close(run)``
+    at the end. ``cut_times``: times at which a segment must end (a hook that acts
+    at a time).
     """
 
     cut_times: tuple = ()
 
     def after_motion(self, run: "FilterRun", s: int, e: int) -> None:
+        pass
+
+    def after_resampling(self, run: "FilterRun", parents: np.ndarray | None, before: ParticleSet) -> None:
         pass
 
     def after_step(self, run: "FilterRun", s: int, e: int) -> None:
@@ -781,6 +799,7 @@ class FilterRun:
     rejected: int = 0
     measured: bool = False
     x_start: np.ndarray | None = None
+    hooks: tuple = ()
 
     @property
     def update_map(self) -> bool:
@@ -800,8 +819,13 @@ class FilterRun:
         ok = explained | escape
         self.used += int(ok.sum())
         self.rejected += int((~ok).sum())
-        self.particles, n_eff, did = resample_if_needed(self.particles, self.params.resampler,
-                                                        self.params.resample_threshold, self.rng)
+        before = self.particles
+        parents, n_eff = draw_parents(before, self.params.resampler, self.params.resample_threshold, self.rng)
+        did = parents is not None
+        if did:
+            self.particles = before.select(parents)
+        for hook in self.hooks:
+            hook.after_resampling(self, parents, before)
         self.n_resamples += did
         self.ess_t.append(t)
         self.ess.append(n_eff)
@@ -916,6 +940,7 @@ def run_fastslam(
     """
     run = start_run(stream, params, rng, x0=x0, landmarks=landmarks, groundtruth_poses=groundtruth_poses,
                     particle_class=particle_class)
+    run.hooks = tuple(hooks)
     cut_times = [t for hook in hooks for t in hook.cut_times]
     t_start = time.perf_counter()
     if run.compiled(hooks):  # the same steps in one compiled call
@@ -959,6 +984,7 @@ __all__ = [
     "FilterRun",
     "start_run",
     "resample_if_needed",
+    "draw_parents",
     "combined_pose",
     "combined_map",
     "run_fastslam",

@@ -53,6 +53,8 @@ from numba import njit
 
 from fastslam_edu.core.angles import wrap_one
 from fastslam_edu.core.ekf import ekf_initialise, ekf_innovation, ekf_update
+from fastslam_edu.core.resampling import (inverse_cdf_unchecked, roulette_positions, stratified_positions,
+                                          systematic_positions)
 
 
 class Particles(NamedTuple):
@@ -85,37 +87,78 @@ class Sightings(NamedTuple):
 
 # ---------------------------------------------------------------- line 4: the motion model
 
+#: Up to this turn per step [rad] :func:`turn` is exact to 3e-14; after a larger one the heading's
+#: cosine and sine are computed directly (:func:`exact_large_turns`).
+SMALL_TURN = 0.2
+
 
 @njit(cache=True, inline="always")
-def sample_pose(x, y, theta, u, dt, noise, eps):
-    """Line 4 for one odometry step: the pose ``(x, y, θ)`` moved by the noisy command.
+def noisy_increments(v, omega, dt, noise, e, m):
+    """The noisy increments ``Δs, Δθ, kick_x, kick_y`` of particle ``m`` over one odometry step.
 
-    ``u = (v, ω)`` [m/s, rad/s], ``dt`` [s], ``noise`` = (σ_v, σ_ω, σ_xy, σ_θ)
-    (:class:`fastslam_edu.core.motion.MotionNoise`: densities per √s), ``eps`` the
+    ``(v, ω)`` [m/s, rad/s], ``dt`` [s], ``noise`` = (σ_v, σ_ω, σ_xy, σ_θ)
+    (:class:`fastslam_edu.core.motion.MotionNoise`: densities per √s), ``e`` (2 or 3, M) the
     step's standard normals. Noise on the command (two normals):
     :math:`\\Delta s = v\\Delta t + \\sigma_v\\sqrt{\\Delta t}\\,\\varepsilon_1`,
-    :math:`\\Delta\\theta = \\omega\\Delta t + \\sigma_\\omega\\sqrt{\\Delta t}\\,\\varepsilon_2`. Noise on the state (three):
-    :math:`\\sigma_{xy}\\sqrt{\\Delta t}\\,(\\varepsilon_1, \\varepsilon_2)` added to the position,
-    :math:`\\sigma_\\theta\\sqrt{\\Delta t}\\,\\varepsilon_3` to the turn. The Euler step moves by :math:`\\Delta s`
-    along the heading at the start of the step; θ is left unwrapped.
-    (:func:`fastslam_edu.core.motion.move` is the same step for arrays of poses.)
-
-    Returns the new ``x, y, θ`` and the cosine and sine of the heading the step
-    started from (the caller's weighted mean of the previous step reuses them).
+    :math:`\\Delta\\theta = \\omega\\Delta t + \\sigma_\\omega\\sqrt{\\Delta t}\\,\\varepsilon_2`, no kick.
+    Noise on the state (three): the kick :math:`\\sigma_{xy}\\sqrt{\\Delta t}\\,(\\varepsilon_1, \\varepsilon_2)`
+    added to the position, :math:`\\sigma_\\theta\\sqrt{\\Delta t}\\,\\varepsilon_3` to the turn.
     """
     root_dt = math.sqrt(dt)
-    ds = u[0] * dt
-    dtheta = u[1] * dt
-    kick_x = kick_y = 0.0
-    if eps.shape[0] == 2:  # noise on the command
-        ds += noise[0] * root_dt * eps[0]
-        dtheta += noise[1] * root_dt * eps[1]
-    else:  # noise on the state
-        kick_x = noise[2] * root_dt * eps[0]
-        kick_y = noise[2] * root_dt * eps[1]
-        dtheta += noise[3] * root_dt * eps[2]
-    cos_theta, sin_theta = math.cos(theta), math.sin(theta)
-    return x + ds * cos_theta + kick_x, y + ds * sin_theta + kick_y, theta + dtheta, cos_theta, sin_theta
+    if e.shape[0] == 2:  # noise on the command
+        return v * dt + noise[0] * root_dt * e[0, m], omega * dt + noise[1] * root_dt * e[1, m], 0.0, 0.0
+    kick = noise[2] * root_dt
+    return v * dt, omega * dt + noise[3] * root_dt * e[2, m], kick * e[0, m], kick * e[1, m]
+
+
+@njit(cache=True, inline="always")
+def turn(c, s, dtheta):
+    """The heading :math:`(c, s) = (\\cos\\theta, \\sin\\theta)` turned by :math:`\\Delta\\theta` (angle addition):
+    :math:`(c\\cos\\Delta\\theta - s\\sin\\Delta\\theta,\\ s\\cos\\Delta\\theta + c\\sin\\Delta\\theta)`.
+
+    :math:`\\cos\\Delta\\theta` and :math:`\\sin\\Delta\\theta` are their Taylor series to
+    :math:`\\Delta\\theta^8` and :math:`\\Delta\\theta^9`, exact to 3e-14 for :math:`|\\Delta\\theta| \\le` :data:`SMALL_TURN`
+    (an odometry step turns by hundredths of a radian). Unlike ``math.cos`` this is plain
+    arithmetic, which the compiler runs on several particles at once.
+    """
+    d2 = dtheta * dtheta
+    cos_d = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)))
+    sin_d = dtheta * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0 * (1.0 - d2 / 72.0))))
+    return c * cos_d - s * sin_d, s * cos_d + c * sin_d
+
+
+@njit(cache=True, inline="always")
+def sample_pose(x, y, c, s, ds, dtheta, kick_x, kick_y):
+    """Line 4 for one particle and one step: the Euler step of the unicycle.
+
+    The particle moves by :math:`\\Delta s` along the heading it starts from,
+    :math:`(c, s) = (\\cos\\theta, \\sin\\theta)`, plus the kick (noise on the state), and turns
+    by :math:`\\Delta\\theta` (:func:`turn`); the increments come from :func:`noisy_increments`.
+    Returns the new ``x, y, c, s``. (:func:`fastslam_edu.core.motion.move` is the same step for
+    arrays of poses.)
+    """
+    c_new, s_new = turn(c, s, dtheta)
+    return x + ds * c + kick_x, y + ds * s + kick_y, c_new, s_new
+
+
+@njit(cache=True)
+def exact_large_turns(theta, dtheta, c, s):
+    """``c, s = cos θ, sin θ`` for the particles that just turned by more than :data:`SMALL_TURN` (long steps)."""
+    for m in range(theta.shape[0]):
+        if abs(dtheta[m]) > SMALL_TURN:
+            c[m], s[m] = math.cos(theta[m]), math.sin(theta[m])
+
+
+@njit(cache=True)
+def weighted_mean_xy_heading(x, y, c, s, w, out):
+    """:math:`\\bar x = \\sum_m w^{[m]} x^{[m]}` into ``out`` (3,), θ the circular mean from the headings ``c, s``."""
+    mx = my = mc = ms = 0.0
+    for m in range(x.shape[0]):
+        mx += w[m] * x[m]
+        my += w[m] * y[m]
+        mc += w[m] * c[m]
+        ms += w[m] * s[m]
+    out[0], out[1], out[2] = mx, my, wrap_one(math.atan2(ms, mc))
 
 
 @njit(cache=True)
@@ -123,48 +166,46 @@ def sample_segment(poses, u, dt, noise, eps, w, mean, best):
     """Line 4 for every particle through ``L`` odometry steps, recording the estimates on the way.
 
     ``poses`` (M, 3) is moved in place (headings wrapped at the end); ``u`` (L, 2), ``dt``
-    (L,), ``noise`` as :func:`sample_pose`, ``eps`` (M, L, 2 or 3) the standard
-    normals. With the normalised weights ``w`` (M,) — constant along the segment,
-    which has no measurement — it writes, for the first ``n = len(mean)`` steps,
-    the weighted-mean pose :math:`\\bar x_t = \\sum_m w^{[m]} x_t^{[m]}` (circular mean
-    for θ) into ``mean`` (n, 3) and the pose of the highest-weight particle into
-    ``best`` (n, 3).
+    (L,), ``noise`` as :func:`noisy_increments`, ``eps`` (L, 2 or 3, M) the standard normals
+    (``eps[t, :, m]``: particle m's at step t). Each step moves every particle, as table 13.1
+    reads, before the next. With the normalised weights ``w`` (M,) — constant along the
+    segment, which has no measurement — it writes, for the first ``n = len(mean)`` steps,
+    the weighted-mean pose :math:`\\bar x_t = \\sum_m w^{[m]} x_t^{[m]}` (circular mean for θ)
+    into ``mean`` (n, 3) and the pose of the highest-weight particle into ``best`` (n, 3).
     """
-    n = mean.shape[0]
-    mean[:] = 0.0
-    cos_sum = np.zeros(n)  # Σ_m w cos θ_t, Σ_m w sin θ_t: the circular mean's sums
-    sin_sum = np.zeros(n)
+    x, y, theta = poses[:, 0].copy(), poses[:, 1].copy(), poses[:, 2].copy()
+    c, s = np.cos(theta), np.sin(theta)  # each particle's heading as a unit vector
+    dtheta = np.empty(theta.shape[0])
     b = np.argmax(w)
-    for m in range(poses.shape[0]):
-        x, y, theta = poses[m, 0], poses[m, 1], poses[m, 2]
-        for t in range(dt.shape[0]):
-            x, y, theta, c, s = sample_pose(x, y, theta, u[t], dt[t], noise, eps[m, t])
-            if 0 < t <= n:  # c, s: of the heading after step t - 1
-                cos_sum[t - 1] += w[m] * c
-                sin_sum[t - 1] += w[m] * s
-            if t < n:
-                mean[t, 0] += w[m] * x
-                mean[t, 1] += w[m] * y
-                if m == b:
-                    best[t, 0], best[t, 1], best[t, 2] = x, y, wrap_one(theta)
-        if n == dt.shape[0]:  # the heading after the last step
-            cos_sum[n - 1] += w[m] * math.cos(theta)
-            sin_sum[n - 1] += w[m] * math.sin(theta)
-        poses[m, 0], poses[m, 1], poses[m, 2] = x, y, wrap_one(theta)
-    for t in range(n):
-        mean[t, 2] = wrap_one(math.atan2(sin_sum[t], cos_sum[t]))
+    for t in range(dt.shape[0]):
+        v, omega, e = u[t, 0], u[t, 1], eps[t]
+        for m in range(theta.shape[0]):
+            ds, dtheta[m], kick_x, kick_y = noisy_increments(v, omega, dt[t], noise, e, m)
+            x[m], y[m], c[m], s[m] = sample_pose(x[m], y[m], c[m], s[m], ds, dtheta[m], kick_x, kick_y)
+            theta[m] += dtheta[m]
+        exact_large_turns(theta, dtheta, c, s)
+        if t < mean.shape[0]:
+            weighted_mean_xy_heading(x, y, c, s, w, mean[t])
+            best[t, 0], best[t, 1], best[t, 2] = x[b], y[b], wrap_one(theta[b])
+    for m in range(theta.shape[0]):
+        poses[m, 0], poses[m, 1], poses[m, 2] = x[m], y[m], wrap_one(theta[m])
 
 
 @njit(cache=True)
 def standard_normals(rng, out):
-    """Fill ``out`` with ``rng``'s standard normals: the numbers of ``rng.standard_normal(out.shape)``.
+    """Fill ``out`` (L, k, M) with ``rng``'s standard normals, particle by particle: ``out[t, :, m]``
+    holds the numbers of ``rng.standard_normal((M, L, k))[m, t]``.
 
-    Compiled, a normal costs a third of numpy's; the call costs ~10 µs more
-    (numba unpacks the Generator), so it pays for large segments only.
+    Each particle's normals are consecutive in the random stream (its whole segment, step by
+    step), and stored by step, the order in which :func:`sample_segment` reads them. Compiled,
+    a normal costs a third of numpy's; the call costs ~10 µs more (numba unpacks the
+    Generator), so it pays for large segments only.
     """
+    n_steps, k, m_count = out.shape
     flat = out.reshape(-1)
-    for i in range(flat.shape[0]):
-        flat[i] = rng.standard_normal()
+    for m in range(m_count):
+        for i in range(m, flat.shape[0], m_count):  # step by step, draw by draw
+            flat[i] = rng.standard_normal()
 
 
 # ---------------------------------------------------------------- lines 5–17 for one particle, behind the gate
@@ -326,32 +367,58 @@ RESAMPLER_CODES = {"systematic": 0, "stratified": 1, "roulette": 2, "multinomial
 
 @njit(cache=True)
 def resampling_indices(w, rng, code):
-    """The particles drawn by resampler ``code`` (:data:`RESAMPLER_CODES`): the numbers of :mod:`fastslam_edu.core.resampling`.
-
-    Positions ``u_j``: systematic ``(j + U) / M``; stratified ``(j + U_j) / M``;
-    roulette ``U_j`` sorted; then the inverse CDF, ``min{i : c_i > u_j}``.
-    """
+    """The particles drawn by resampler ``code`` (:data:`RESAMPLER_CODES`), with the kernels of
+    :mod:`fastslam_edu.core.resampling`: positions ``u_j`` (systematic ``(j + U) / M``; stratified
+    ``(j + U_j) / M``; roulette ``U_j`` sorted), then the inverse CDF, ``min{i : c_i > u_j}``."""
     m = w.shape[0]
     if code == 0:
-        u = (np.arange(m) + rng.random()) / m
+        u = systematic_positions(m, rng)
     elif code == 1:
-        u = (np.arange(m) + rng.random(m)) / m
+        u = stratified_positions(m, rng)
     else:
-        u = np.sort(rng.random(m))
-    c = np.cumsum(w / np.sum(w))
-    c = c / c[-1]
-    u = np.minimum(np.maximum(u, 0.0), 1.0 - 2.0**-53)
-    return np.searchsorted(c, u, side="right")
+        u = roulette_positions(m, rng)
+    return inverse_cdf_unchecked(u, w / np.sum(w))
+
+
+@njit(cache=True, inline="always")
+def copy_particle(P, i, m):
+    """Particle ``i``'s pose and map written over particle ``m``'s."""
+    for a in range(3):
+        P.poses[m, a] = P.poses[i, a]
+    for k in range(P.mu.shape[1]):
+        P.mu[m, k, 0], P.mu[m, k, 1] = P.mu[i, k, 0], P.mu[i, k, 1]
+        P.sigma[m, k, 0, 0], P.sigma[m, k, 0, 1] = P.sigma[i, k, 0, 0], P.sigma[i, k, 0, 1]
+        P.sigma[m, k, 1, 0], P.sigma[m, k, 1, 1] = P.sigma[i, k, 1, 0], P.sigma[i, k, 1, 1]
+        P.seen[m, k], P.count[m, k] = P.seen[i, k], P.count[i, k]
 
 
 @njit(cache=True)
 def select_in_place(P, idx):
-    """The particles ``idx`` replace the set, their maps copied (no two offspring share memory); log weights 0."""
-    P.poses[:] = P.poses[idx]
-    P.mu[:] = P.mu[idx]
-    P.sigma[:] = P.sigma[idx]
-    P.seen[:] = P.seen[idx]
-    P.count[:] = P.count[idx]
+    """The particles ``idx`` replace the set, their maps copied (no two offspring share memory); log weights 0.
+
+    The resamplers draw ``idx`` in increasing order. Then no copy overwrites a particle
+    still to be copied if the particles that move down (``idx[m] > m``) are copied first,
+    in increasing ``m``, and those that move up (``idx[m] < m``) next, in decreasing ``m``:
+    a particle ``p`` read by the second pass has ``idx[p] <= p``, so the first did not
+    write it. Each moved particle is copied once, with no temporary set. Other orders:
+    through a copy of the set.
+    """
+    increasing = True
+    for m in range(1, idx.shape[0]):
+        increasing = increasing and idx[m - 1] <= idx[m]
+    if increasing:
+        for m in range(idx.shape[0]):
+            if idx[m] > m:
+                copy_particle(P, idx[m], m)
+        for m in range(idx.shape[0] - 1, -1, -1):
+            if idx[m] < m:
+                copy_particle(P, idx[m], m)
+    else:
+        P.poses[:] = P.poses[idx]
+        P.mu[:] = P.mu[idx]
+        P.sigma[:] = P.sigma[idx]
+        P.seen[:] = P.seen[idx]
+        P.count[:] = P.count[idx]
     P.logw[:] = 0.0
 
 
@@ -444,7 +511,7 @@ def run_segments(P, L, s, segments, rng, out):
         first, last = segments[r, 0], segments[r, 1]
         measured = L.offsets[last + 1] > L.offsets[last]
         n_record = last - first + (0 if measured else 1)  # a measurement step's estimate comes after the update
-        eps = np.empty((m, last - first + 1, s.n_draws))
+        eps = np.empty((last - first + 1, s.n_draws, m))
         standard_normals(rng, eps)
         sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
                        out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
