@@ -829,17 +829,19 @@ def test_the_step_runs_as_plain_python_with_the_same_numbers(tmp_path):
     np.testing.assert_allclose(plain["logw"], r.particles.logw, rtol=0, atol=1e-6)
 
 
-@pytest.mark.parametrize("resampler, threshold, mode, noise_on", [
-    ("systematic", 0.5, "slam", "control"), ("stratified", 0.5, "slam", "state"),
-    ("roulette", 1.0, "slam", "control"), ("systematic", 0.5, "localize", "control"),
+@pytest.mark.parametrize("resampler, threshold, mode, noise_on, proposal", [
+    ("systematic", 0.5, "slam", "control", "motion"), ("stratified", 0.5, "slam", "state", "motion"),
+    ("roulette", 1.0, "slam", "control", "motion"), ("systematic", 0.5, "localize", "control", "motion"),
+    ("systematic", 0.95, "slam", "control", "fastslam2"), ("stratified", 1.0, "localize", "state", "fastslam2"),
 ])
-def test_compiled_run_equals_the_python_loop(resampler, threshold, mode, noise_on):
-    """run_fastslam without hooks runs in one compiled call; with a hook, its Python loop: the same numbers."""
+def test_compiled_run_equals_the_python_loop(resampler, threshold, mode, noise_on, proposal):
+    """run_fastslam without hooks runs in one compiled call; with a hook, its Python loop: the same numbers
+    (FastSLAM 1.0 and 2.0)."""
     data, log, stream = simulate(7, duration=30.0)
     noise = fs.MotionNoise(sigma_v=0.05, sigma_omega=0.05) if noise_on == "control" else \
         fs.MotionNoise(mode="state", sigma_xy=0.03, sigma_theta=0.03)
     params = FastSLAMParams(n_particles=40, resampler=resampler, resample_threshold=threshold, mode=mode,
-                            motion_noise=noise)
+                            motion_noise=noise, proposal=proposal)
     kw = dict(landmarks=data.landmark_positions)
     run = fs.start_run(stream, params, 0, **kw)
     assert run.compiled(())

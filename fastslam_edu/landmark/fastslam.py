@@ -834,9 +834,9 @@ class FilterRun:
         self.pose_best[e] = self.particles.poses[int(np.argmax(self.w))]
 
     def compiled(self, hooks) -> bool:
-        """Whether :meth:`run_compiled` can run this filter: FastSLAM 1.0's proposal, dense particles, no hooks."""
-        return (not hooks and type(self.proposal) is MotionProposal and type(self.particles) is ParticleSet
-                and self.params.resampler in RESAMPLER_CODES)
+        """Whether :meth:`run_compiled` can run this filter: FastSLAM 1.0's or 2.0's proposal, dense particles, no hooks."""
+        return (not hooks and type(self.proposal) in (MotionProposal, ImprovedProposal)
+                and type(self.particles) is ParticleSet and self.params.resampler in RESAMPLER_CODES)
 
     def run_compiled(self, segments: np.ndarray) -> None:
         """Steps 1–4 over all ``segments`` in one compiled call (:func:`fastslam_edu.landmark.fastslam_step.run_segments`):
@@ -849,7 +849,8 @@ class FilterRun:
         settings = Settings(p.motion_noise.densities, p.motion_noise.n_draws,
                             math.inf if self.gate.chi2 is None else float(self.gate.chi2), self.gate.escape_s,
                             0.0 if p.measurement_correlation_s is None else float(p.measurement_correlation_s),
-                            self.update_map, float(p.resample_threshold), RESAMPLER_CODES[p.resampler])
+                            self.update_map, float(p.resample_threshold), RESAMPLER_CODES[p.resampler],
+                            int(type(self.proposal) is ImprovedProposal), 2 if self.update_map else 1)
         n_instants = int(np.count_nonzero(np.diff(stream.offsets)))
         record = Record(self.pose_mean, self.pose_best, np.empty(n_instants), np.empty(n_instants),
                         np.array(self.w, dtype=float), self.gate.unexplained_since, self.last_seen,

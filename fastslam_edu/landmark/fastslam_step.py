@@ -55,6 +55,7 @@ from fastslam_edu.core.angles import wrap_one
 from fastslam_edu.core.ekf import ekf_initialise, ekf_innovation, ekf_update
 from fastslam_edu.core.resampling import (inverse_cdf_unchecked, roulette_positions, stratified_positions,
                                           systematic_positions)
+from fastslam_edu.landmark.proposal import predict_into, sample_improved, segment_motion_into
 
 
 class Particles(NamedTuple):
@@ -447,7 +448,8 @@ class Log(NamedTuple):
 
 class Settings(NamedTuple):
     """noise (4,) densities; n_draws 2 or 3; gate_chi2 (inf: none); escape_s; tau (0: no tempering);
-    update_map; resample_threshold; resampler (:data:`RESAMPLER_CODES`)."""
+    update_map; resample_threshold; resampler (:data:`RESAMPLER_CODES`); proposal 0 (FastSLAM 1.0) or
+    1 (2.0, :mod:`fastslam_edu.landmark.proposal`); min_count: sightings of a landmark before 2.0 uses it."""
 
     noise: np.ndarray
     n_draws: int
@@ -457,6 +459,8 @@ class Settings(NamedTuple):
     update_map: bool
     resample_threshold: float
     resampler: int
+    proposal: int = 0
+    min_count: int = 2
 
 
 class Record(NamedTuple):
@@ -475,10 +479,11 @@ class Record(NamedTuple):
 
 
 @njit(cache=True)
-def measure_instant(P, L, s, k, rng, out):
+def measure_instant(P, L, s, k, rng, out, prediction):
     """Steps 2–4 at measurement step ``k``: gate, update, weights, resampling, the combined pose.
 
-    ``P`` :class:`Particles`, ``L`` :class:`Log`, ``s`` :class:`Settings`, ``out`` :class:`Record`.
+    ``P`` :class:`Particles`, ``L`` :class:`Log`, ``s`` :class:`Settings`, ``out`` :class:`Record`;
+    ``prediction``: FastSLAM 2.0's :math:`(\\bar x, P)` ((M, 3), (M, 3, 3), :func:`motion_prediction_of`).
     """
     a, b = L.offsets[k], L.offsets[k + 1]
     j, t = L.j[a:b], L.t[k]
@@ -487,6 +492,8 @@ def measure_instant(P, L, s, k, rng, out):
     gate_escapes(t, j, out.unexplained_since, s.escape_s, escape)
     tempering_exponents(t, j, out.last_seen, s.tau, beta)
     S = Sightings(L.z[a:b], j, L.R[a:b], escape, beta, np.full((P.poses.shape[0], n), np.nan))
+    if s.proposal == 1:  # FastSLAM 2.0: the poses drawn given the sightings too, S.loglik their weights
+        sample_improved(P, S, prediction[0], prediction[1], s.gate_chi2, s.min_count, rng)
     update_particles(P, S, s.gate_chi2, s.update_map, explained)
     gate_record(t, j, explained, out.unexplained_since)
     for i in range(n):
@@ -507,6 +514,18 @@ def measure_instant(P, L, s, k, rng, out):
 
 
 @njit(cache=True)
+def motion_prediction_of(x_start, u, dt, s):
+    """FastSLAM 2.0's motion prediction :math:`(\\bar x, P)` through the steps ``u`` (L, 2), ``dt`` (L,) for the
+    particles that started at ``x_start`` (M, 3) (:mod:`fastslam_edu.landmark.proposal`); empty for FastSLAM 1.0."""
+    x_bar, cov = np.empty((x_start.shape[0], 3)), np.empty((x_start.shape[0], 3, 3))
+    if s.proposal == 1:
+        delta, P_rel = np.empty(3), np.empty((3, 3))
+        segment_motion_into(u, dt, s.noise, s.n_draws == 2, delta, P_rel)
+        predict_into(x_start, delta, P_rel, x_bar, cov)
+    return x_bar, cov
+
+
+@njit(cache=True)
 def run_segments(P, L, s, segments, rng, out):
     """Steps 1–4 over ``segments`` (S, 2): runs of steps ``start..end``, each ending at a measurement step
     or a cut; for each, line 4 for every particle (:func:`sample_segment`), then :func:`measure_instant`."""
@@ -515,9 +534,11 @@ def run_segments(P, L, s, segments, rng, out):
         first, last = segments[r, 0], segments[r, 1]
         measured = L.offsets[last + 1] > L.offsets[last]
         n_record = last - first + (0 if measured else 1)  # a measurement step's estimate comes after the update
+        x_start = P.poses.copy() if s.proposal == 1 else P.poses[:0].copy()
         eps = np.empty((last - first + 1, s.n_draws, m))
         standard_normals(rng, eps)
         sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
                        out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
         if measured:
-            measure_instant(P, L, s, last, rng, out)
+            prediction = motion_prediction_of(x_start, L.u[first:last + 1], L.dt[first:last + 1], s)
+            measure_instant(P, L, s, last, rng, out, prediction)

@@ -51,12 +51,15 @@ the motion noise of all of them carried to the end of the segment
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
-from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.core.ekf import _det2, _inv2, _symmetrise, _transpose
+import numpy as np
+from numba import njit
+
+from fastslam_edu.core.angles import wrap_one
+from fastslam_edu.core.ekf import LOG_2PI, ekf_innovation, expected_measurement
 from fastslam_edu.core.measurement import innovation, jacobian_landmark, jacobian_pose, range_bearing
-from fastslam_edu.core.motion import MotionNoise, path_from_increments, segment_increments
+from fastslam_edu.core.motion import MotionNoise
 
 
 def segment_motion(u, dt, noise: MotionNoise) -> tuple[np.ndarray, np.ndarray]:
@@ -91,20 +94,41 @@ def segment_motion(u, dt, noise: MotionNoise) -> tuple[np.ndarray, np.ndarray]:
     P_rel : ndarray, shape (3, 3)
         Its covariance, in the same frame.
     """
-    u = np.atleast_2d(np.asarray(u, dtype=float))
-    dt = np.atleast_1d(np.asarray(dt, dtype=float))
-    origin = np.zeros((1, 3))
-    steps = segment_increments(origin, u, dt, MotionNoise(), np.zeros((1, len(dt), 3)))
-    px, py, theta = path_from_increments(origin, *steps, wrap=False)[0].T  # after each step
-    heading = theta - u[:, 1] * dt  # during each step
-    turn = np.stack([-(py[-1] - py), px[-1] - px, np.ones_like(px)], axis=1)  # (L, 3)
-    if noise.mode == "control":
-        along = np.stack([np.cos(heading), np.sin(heading), np.zeros_like(px)], axis=1)
-        P = (turn.T * noise.sigma_omega**2 * dt) @ turn + (along.T * noise.sigma_v**2 * dt) @ along
-    else:
-        P = (turn.T * noise.sigma_theta**2 * dt) @ turn
-        P[:2, :2] += np.eye(2) * noise.sigma_xy**2 * dt.sum()
-    return np.array([px[-1], py[-1], theta[-1]]), P
+    u = np.ascontiguousarray(np.atleast_2d(np.asarray(u, dtype=float)))
+    dt = np.ascontiguousarray(np.atleast_1d(np.asarray(dt, dtype=float)))
+    delta, P = np.empty(3), np.empty((3, 3))
+    segment_motion_into(u, dt, noise.densities, noise.mode == "control", delta, P)
+    return delta, P
+
+
+@njit(cache=True)
+def segment_motion_into(u, dt, noise, control, delta, P):
+    """:func:`segment_motion` into ``delta`` (3,) and ``P`` (3, 3), compiled: ``noise`` = (σ_v, σ_ω, σ_xy, σ_θ)
+    (:class:`~fastslam_edu.core.motion.MotionNoise` densities), ``control`` True for noise on the command."""
+    n = dt.shape[0]
+    heading, px, py = np.empty(n), np.empty(n), np.empty(n)  # during step j; position after it
+    x = y = theta = 0.0
+    for j in range(n):
+        heading[j] = theta
+        x += u[j, 0] * dt[j] * math.cos(theta)
+        y += u[j, 0] * dt[j] * math.sin(theta)
+        theta += u[j, 1] * dt[j]
+        px[j], py[j] = x, y
+    delta[0], delta[1], delta[2] = x, y, theta
+    P[:] = 0.0
+    turn_var = noise[1] ** 2 if control else noise[3] ** 2
+    for j in range(n):
+        turn = (-(y - py[j]), x - px[j], 1.0)  # the rest of the path rotates about the position after step j
+        along = (math.cos(heading[j]), math.sin(heading[j]), 0.0)
+        for a in range(3):
+            for b in range(3):
+                P[a, b] += turn_var * dt[j] * turn[a] * turn[b]
+                if control:
+                    P[a, b] += noise[0] ** 2 * dt[j] * along[a] * along[b]
+    if not control:
+        total = noise[2] ** 2 * np.sum(dt)
+        P[0, 0] += total
+        P[1, 1] += total
 
 
 def motion_prediction(x0, delta, P_rel) -> tuple[np.ndarray, np.ndarray]:
@@ -114,33 +138,88 @@ def motion_prediction(x0, delta, P_rel) -> tuple[np.ndarray, np.ndarray]:
     :math:`\\bar x = x_0 \\oplus \\Delta`, :math:`P = T P_\\text{rel} T^\\top` with
     :math:`T = \\operatorname{diag}(R(\\theta_0), 1)`. Returns (M, 3) and (M, 3, 3).
     """
-    x0 = np.asarray(x0, dtype=float)
-    c, s = np.cos(x0[:, 2]), np.sin(x0[:, 2])
-    xbar = np.column_stack([x0[:, 0] + c * delta[0] - s * delta[1],
-                            x0[:, 1] + s * delta[0] + c * delta[1],
-                            x0[:, 2] + delta[2]])
-    T = np.zeros((len(x0), 3, 3))
-    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1], T[:, 2, 2] = c, -s, s, c, 1.0
-    return xbar, T @ P_rel @ _transpose(T)
+    x0 = np.ascontiguousarray(np.asarray(x0, dtype=float).reshape(-1, 3))
+    x_bar, P = np.empty_like(x0), np.empty((len(x0), 3, 3))
+    predict_into(x0, np.asarray(delta, dtype=float), np.ascontiguousarray(P_rel, dtype=float), x_bar, P)
+    return x_bar, P
 
 
-def _cholesky2(Q):
-    """Lower-triangular ``L`` with ``L Lᵀ = Q`` for each 2×2 covariance in (n, 2, 2)."""
-    L = np.zeros_like(Q)
-    L[:, 0, 0] = np.sqrt(Q[:, 0, 0])
-    L[:, 1, 0] = Q[:, 1, 0] / L[:, 0, 0]
-    L[:, 1, 1] = np.sqrt(Q[:, 1, 1] - L[:, 1, 0] ** 2)
-    return L
+@njit(cache=True)
+def predict_into(x0, delta, P_rel, x_bar, P):
+    """:func:`motion_prediction` into ``x_bar`` (M, 3) and ``P`` (M, 3, 3), compiled."""
+    for m in range(x0.shape[0]):
+        c, s = math.cos(x0[m, 2]), math.sin(x0[m, 2])
+        x_bar[m, 0] = x0[m, 0] + c * delta[0] - s * delta[1]
+        x_bar[m, 1] = x0[m, 1] + s * delta[0] + c * delta[1]
+        x_bar[m, 2] = x0[m, 2] + delta[2]
+        T = ((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0))
+        for a in range(3):
+            for b in range(3):
+                total = 0.0
+                for i in range(3):
+                    for k in range(3):
+                        total += T[a][i] * P_rel[i, k] * T[b][k]
+                P[m, a, b] = total
 
 
-def _innovation(z, z_hat):
-    nu = z - z_hat
-    nu[..., 1] = wrap_angle(nu[..., 1])
-    return nu
+@njit(cache=True, inline="always")
+def improved_pose_into(x_hat, x_bar, P, mu, sigma, z, R, e):
+    """The proposal for one particle and one sighting, in place; returns ``(d2, loglik)``.
+
+    At the motion prediction :math:`\\bar x` (3,) with covariance :math:`P` (3, 3): :math:`\\bar\\nu = z - \\hat z(\\bar x)`,
+    :math:`H` and :math:`Q = H\\Sigma H^\\top + R` (:func:`fastslam_edu.core.ekf.ekf_innovation` for the landmark
+    ``mu`` (2,), ``sigma`` (2, 2)), :math:`G = \\partial h/\\partial x = (-H \\mid (0, -1)^\\top)`,
+    :math:`S = G P G^\\top + Q`, :math:`K = P G^\\top S^{-1}`. Then, in place: the motion sample ``x_hat`` (3,)
+    becomes :math:`\\hat x + K\\,(z + L e - \\hat z(\\hat x))` with :math:`L L^\\top = Q` and ``e`` (2,) standard
+    normals (heading wrapped), ``x_bar`` becomes :math:`\\mu_x = \\bar x + K\\bar\\nu`, ``P`` becomes
+    :math:`\\Sigma_x = (I - K G) P` (kept symmetric). Returns :math:`d^2 = \\bar\\nu^\\top S^{-1}\\bar\\nu` and
+    :math:`\\log\\mathcal N(\\bar\\nu; 0, S)`.
+    """
+    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, _, _ = ekf_innovation(x_bar, z, R, mu, sigma)
+    G = ((-h00, -h01, 0.0), (-h10, -h11, -1.0))
+    PG = np.zeros((3, 2))  # P Gᵀ
+    for a in range(3):
+        for r in range(2):
+            for b in range(3):
+                PG[a, r] += P[a, b] * G[r][b]
+    s00 = G[0][0] * PG[0, 0] + G[0][1] * PG[1, 0] + G[0][2] * PG[2, 0] + q00  # S = G P Gᵀ + Q
+    s01 = G[0][0] * PG[0, 1] + G[0][1] * PG[1, 1] + G[0][2] * PG[2, 1] + q01
+    s11 = G[1][0] * PG[0, 1] + G[1][1] * PG[1, 1] + G[1][2] * PG[2, 1] + q11
+    det_s = s00 * s11 - s01 * s01
+    i00, i01, i11 = s11 / det_s, -s01 / det_s, s00 / det_s  # S⁻¹
+    K = np.empty((3, 2))
+    for a in range(3):
+        K[a, 0] = PG[a, 0] * i00 + PG[a, 1] * i01
+        K[a, 1] = PG[a, 0] * i01 + PG[a, 1] * i11
+    d2 = (s11 * nu0 * nu0 - 2.0 * s01 * nu0 * nu1 + s00 * nu1 * nu1) / det_s
+    loglik = -0.5 * d2 - LOG_2PI - 0.5 * math.log(det_s)
+    l00 = math.sqrt(q00)  # L Lᵀ = Q
+    l10 = q01 / l00
+    l11 = math.sqrt(q11 - l10 * l10)
+    r, phi = expected_measurement(x_hat, mu)[:2]
+    v0 = z[0] + l00 * e[0] - r
+    v1 = wrap_one(z[1] + l10 * e[0] + l11 * e[1] - phi)
+    for a in range(3):
+        x_hat[a] += K[a, 0] * v0 + K[a, 1] * v1
+        x_bar[a] += K[a, 0] * nu0 + K[a, 1] * nu1
+    x_hat[2] = wrap_one(x_hat[2])
+    for a in range(3):  # Σ_x = P − K G P = P − K (P Gᵀ)ᵀ
+        for b in range(3):
+            P[a, b] -= K[a, 0] * PG[b, 0] + K[a, 1] * PG[b, 1]
+    for a in range(3):
+        for b in range(a + 1, 3):
+            P[a, b] = P[b, a] = 0.5 * (P[a, b] + P[b, a])
+    return d2, loglik
+
+
+@njit(cache=True)
+def _improved_poses(x_hat, x_bar, P, mu, Sigma, z, R, eps, d2, loglik):
+    for m in range(x_hat.shape[0]):
+        d2[m], loglik[m] = improved_pose_into(x_hat[m], x_bar[m], P[m], mu[m], Sigma[m], z, R, eps[m])
 
 
 def improved_pose(x_hat, x_bar, P, mu, Sigma, z, R, eps):
-    """The proposal for one sighting, for n particles at once (the engine's form).
+    """The proposal for one sighting, for n particles (:func:`improved_pose_into` for each).
 
     Parameters
     ----------
@@ -168,21 +247,12 @@ def improved_pose(x_hat, x_bar, P, mu, Sigma, z, R, eps):
     d2 : ndarray (n,)
         :math:`\\nu^\\top S^{-1} \\nu`, for the gate.
     """
-    z_bar, H, G = range_bearing(x_bar, mu), jacobian_landmark(x_bar, mu), jacobian_pose(x_bar, mu)
-    Q = H @ Sigma @ _transpose(H) + R
-    S = G @ P @ _transpose(G) + Q
-    det_S = _det2(S)
-    S_inv = _inv2(S, det_S)
-    K = P @ _transpose(G) @ S_inv  # (n, 3, 2)
-    nu_bar = _innovation(z, z_bar)
-    d2 = np.einsum("ni,nij,nj->n", nu_bar, S_inv, nu_bar)
-    loglik = -0.5 * d2 - np.log(2.0 * np.pi) - 0.5 * np.log(det_S)
-    z_hat = range_bearing(x_hat, mu)
-    perturbation = np.einsum("nij,nj->ni", _cholesky2(Q), eps)
-    x = x_hat + np.einsum("nij,nj->ni", K, _innovation(z + perturbation, z_hat))
-    x[:, 2] = wrap_angle(x[:, 2])
-    x_bar_new = x_bar + np.einsum("nij,nj->ni", K, nu_bar)
-    return x, x_bar_new, _symmetrise(P - K @ G @ P), loglik, d2
+    x, x_bar_new, P_new = (np.array(a, dtype=float) for a in (x_hat, x_bar, P))  # private copies, changed in place
+    mu, Sigma, eps = (np.ascontiguousarray(a, dtype=float) for a in (mu, Sigma, eps))
+    d2, loglik = np.empty(len(x)), np.empty(len(x))
+    _improved_poses(x, x_bar_new, P_new, mu, Sigma, np.asarray(z, dtype=float), np.asarray(R, dtype=float), eps,
+                    d2, loglik)
+    return x, x_bar_new, P_new, loglik, d2
 
 
 def improved_pose_one(x_bar, P, mu, Sigma, z, R):
@@ -227,25 +297,33 @@ def sample_improved_poses(particles, sightings, x_bar, P, *, gate_chi2, rng, min
     :func:`fastslam_edu.landmark.fastslam.update_with_measurements`), with the gate and the
     exponents :math:`\\beta` as for its own.
     """
+    from fastslam_edu.landmark.fastslam_step import Sightings  # (fastslam_step runs this module's kernels)
+
     z, k, R, escape = sightings
-    loglik = np.full((len(particles), len(z)), np.nan)
-    used = set()
-    x_bar, P = x_bar.copy(), P.copy()
-    for j, landmark in enumerate(np.asarray(k, dtype=int)):
-        if landmark in used:
+    S = Sightings(np.asarray(z, dtype=float).reshape(-1, 2), np.asarray(k, dtype=np.int64),
+                  np.ascontiguousarray(R, dtype=float), np.asarray(escape, dtype=np.bool_), np.ones(len(z)),
+                  np.full((len(particles), len(z)), np.nan))
+    sample_improved(particles.arrays(), S, np.array(x_bar, dtype=float), np.array(P, dtype=float),
+                    math.inf if gate_chi2 is None else float(gate_chi2), int(min_count), rng)
+    return S.loglik
+
+
+@njit(cache=True)
+def sample_improved(P, S, x_bar, cov, gate_chi2, min_count, rng):
+    """:func:`sample_improved_poses` on the particle arrays ``P`` (:class:`~fastslam_edu.landmark.fastslam_step.Particles`)
+    and the sightings ``S`` (:class:`~fastslam_edu.landmark.fastslam_step.Sightings`; the weights go to ``S.loglik``),
+    compiled: particle by particle, the proposal of :func:`improved_pose_into` where the gate lets it."""
+    x, xb, c, e = np.empty(3), np.empty(3), np.empty((3, 3)), np.empty(2)
+    for i in range(S.j.shape[0]):
+        j = S.j[i]
+        if (S.j[:i] == j).any():  # a landmark read twice at one instant: once
             continue
-        used.add(landmark)
-        idx = np.flatnonzero(particles.seen[:, landmark] & (particles.count[:, landmark] >= min_count))
-        if idx.size == 0:
-            continue
-        mu, Sigma = particles.mu[idx, landmark], particles.sigma[idx, landmark]
-        eps = rng.standard_normal((idx.size, 2))
-        x, x_bar_j, P_j, loglik_j, d2 = improved_pose(particles.poses[idx], x_bar[idx], P[idx], mu, Sigma, z[j], R[j],
-                                                      eps)
-        if gate_chi2 is not None and not escape[j]:
-            keep = d2 <= gate_chi2
-            idx, x, x_bar_j, P_j, loglik_j = (a[keep] for a in (idx, x, x_bar_j, P_j, loglik_j))
-        particles.poses[idx] = x
-        x_bar[idx], P[idx] = x_bar_j, P_j
-        loglik[idx, j] = loglik_j
-    return loglik
+        for m in range(P.poses.shape[0]):
+            if not (P.seen[m, j] and P.count[m, j] >= min_count):
+                continue
+            e[0], e[1] = rng.standard_normal(), rng.standard_normal()
+            x[:], xb[:], c[:] = P.poses[m], x_bar[m], cov[m]
+            d2, loglik = improved_pose_into(x, xb, c, P.mu[m, j], P.sigma[m, j], S.z[i], S.R[i], e)
+            if S.escape[i] or d2 <= gate_chi2:
+                P.poses[m], x_bar[m], cov[m] = x, xb, c
+                S.loglik[m, i] = loglik
