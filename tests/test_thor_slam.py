@@ -22,7 +22,8 @@ from fastslam_edu.datasets.thor_sim import (FLOOR, FloorPlan, ThorSimConfig, def
 from fastslam_edu.grid.gridslam import GridSLAMParams
 from fastslam_edu.grid.occupancy import OccupancyGrid
 from fastslam_edu.grid.thor import LIDAR_HEIGHT, lidar_points_world
-from fastslam_edu.grid.thor_slam import map_from_poses, map_scores, planar_scans, thor_grid_slam, wall_cells
+from fastslam_edu.grid.gridslam import map_from_poses
+from fastslam_edu.grid.thor_slam import map_scores, planar_scans, thor_grid_slam, wall_cells
 
 T0 = 1.6e9
 DURATION = 36.0  # [s]

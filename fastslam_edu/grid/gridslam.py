@@ -86,12 +86,14 @@ from scipy.special import logit
 from fastslam_edu.datasets.laser import LaserLog, odometry_increments
 from fastslam_edu.grid.occupancy import (OccupancyGrid, cell_values, ray_cells_batch, scan_endpoints,
                                          update_maps)
+from fastslam_edu.core.checks import finite_array
 from fastslam_edu.core.params import Params
 from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.se2 import compose, compose_increments, transform_points
 from fastslam_edu.core.weights import effective_sample_size, normalise_log_weights
 
 __all__ = [
+    "map_from_poses",
     "GridSLAMParams",
     "GridSLAMResult",
     "MAP_MODES",
@@ -382,6 +384,48 @@ def grid_for_path(path, params: GridSLAMParams) -> OccupancyGrid:
     return OccupancyGrid.around(
         extent, params.resolution, margin=margin, p_hit=params.p_hit, p_miss=params.p_miss, l_max=params.l_max
     )
+
+
+def map_from_poses(log: LaserLog, poses, params: GridSLAMParams, *, grid: OccupancyGrid | None = None,
+                   every: int = 1, n_scans: int | None = None) -> OccupancyGrid:
+    """The log-odds map of a log's scans seen from given poses (no filter): odometry's map, or the truth's.
+
+    Same cells and inverse sensor model as the filter's map
+    (:func:`grid_for_path` on the log's odometry,
+    unless ``grid`` is given), same beams (``params.min_range``, ``params.max_range``).
+
+    Parameters
+    ----------
+    log : LaserLog
+    poses : array_like, shape (N, 3)
+        One pose per scan (e.g. ``log.odometry``, or a simulated truth).
+    params : GridSLAMParams
+    grid : OccupancyGrid, optional
+        An empty grid to fill (copied); default the filter's grid for this log.
+    every : int
+        Use scans ``0, every, 2·every, …``.
+    n_scans : int, optional
+        Use only the first ``n_scans`` scans.
+
+    Returns
+    -------
+    OccupancyGrid
+    """
+    p = finite_array("poses", poses, "map_from_poses")
+    if p.shape != (len(log), 3):
+        raise ValueError(f"map_from_poses: poses must have shape ({len(log)}, 3), got {p.shape}")
+    if int(every) != every or every < 1:
+        raise ValueError(f"map_from_poses: every must be a positive integer, got {every}")
+    base = log.odometry if log.odometry is not None else log.poses
+    if n_scans is not None and (int(n_scans) != n_scans or n_scans < 1):
+        raise ValueError(f"map_from_poses: n_scans must be a positive integer, got {n_scans}")
+    n = len(log) if n_scans is None else min(int(n_scans), len(log))
+    g = grid_for_path(base, params) if grid is None else grid.copy()
+    for k in range(0, n, int(every)):  # one ray-traced update per scan
+        r, a = log.beams(k, min_range=params.min_range, max_range=params.max_range)
+        if len(r):
+            g.update(p[k], scan_endpoints(p[k], r, a))
+    return g
 
 
 def endpoint_cells(grid: OccupancyGrid, points) -> tuple[np.ndarray, np.ndarray]:

@@ -32,11 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fastslam_edu.core.checks import finite_array
 from fastslam_edu.datasets.laser import LaserLog, ThorLidar
 from fastslam_edu.datasets.thor_sim import FloorPlan
-from fastslam_edu.grid.gridslam import GridSLAMParams, GridSLAMResult, grid_for_path, run_grid_slam
-from fastslam_edu.grid.occupancy import OccupancyGrid, scan_endpoints
+from fastslam_edu.grid.gridslam import GridSLAMParams, GridSLAMResult, run_grid_slam
+from fastslam_edu.grid.occupancy import OccupancyGrid
 from fastslam_edu.grid.thor import BAND_Z, FLOOR_Z, MAX_RANGE, PLANAR_BEARING_STEP, planar_laser_log
 
 __all__ = [
@@ -44,7 +43,6 @@ __all__ = [
     "planar_scans",
     "ThorSLAM",
     "thor_grid_slam",
-    "map_from_poses",
     "wall_cells",
     "MapScores",
     "map_scores",
@@ -131,48 +129,6 @@ def thor_grid_slam(
     log = planar_scans(lidar, *joints, floor_filter=floor_filter, bearing_step=bearing_step)
     result = run_grid_slam(log, params, rng, n_scans=n_scans)
     return ThorSLAM(log=log, result=result, floor_filter=floor_filter)
-
-
-def map_from_poses(log: LaserLog, poses, params: GridSLAMParams, *, grid: OccupancyGrid | None = None,
-                   every: int = 1, n_scans: int | None = None) -> OccupancyGrid:
-    """The log-odds map of a log's scans seen from given poses (no filter): odometry's map, or the truth's.
-
-    Same cells and inverse sensor model as the filter's map
-    (:func:`fastslam_edu.grid.gridslam.grid_for_path` on the log's odometry,
-    unless ``grid`` is given), same beams (``params.min_range``, ``params.max_range``).
-
-    Parameters
-    ----------
-    log : LaserLog
-    poses : array_like, shape (N, 3)
-        One pose per scan (e.g. ``log.odometry``, or a simulated truth).
-    params : GridSLAMParams
-    grid : OccupancyGrid, optional
-        An empty grid to fill (copied); default the filter's grid for this log.
-    every : int
-        Use scans ``0, every, 2·every, …``.
-    n_scans : int, optional
-        Use only the first ``n_scans`` scans.
-
-    Returns
-    -------
-    OccupancyGrid
-    """
-    p = finite_array("poses", poses, "map_from_poses")
-    if p.shape != (len(log), 3):
-        raise ValueError(f"map_from_poses: poses must have shape ({len(log)}, 3), got {p.shape}")
-    if int(every) != every or every < 1:
-        raise ValueError(f"map_from_poses: every must be a positive integer, got {every}")
-    base = log.odometry if log.odometry is not None else log.poses
-    if n_scans is not None and (int(n_scans) != n_scans or n_scans < 1):
-        raise ValueError(f"map_from_poses: n_scans must be a positive integer, got {n_scans}")
-    n = len(log) if n_scans is None else min(int(n_scans), len(log))
-    g = grid_for_path(base, params) if grid is None else grid.copy()
-    for k in range(0, n, int(every)):  # one ray-traced update per scan
-        r, a = log.beams(k, min_range=params.min_range, max_range=params.max_range)
-        if len(r):
-            g.update(p[k], scan_endpoints(p[k], r, a))
-    return g
 
 
 def wall_cells(plan: FloorPlan, grid: OccupancyGrid) -> np.ndarray:
