@@ -479,20 +479,21 @@ def resample_if_needed(
     weights are uniform (the evidence is now in the particle counts — keeping
     the old weights as well would count it twice).
     """
-    parents, n_eff = draw_parents(particles, resampler, threshold, rng)
+    parents, n_eff, _ = draw_parents(particles, resampler, threshold, rng)
     if parents is None:
         return particles, n_eff, False
     return particles.select(parents), n_eff, True
 
 
 def draw_parents(particles: ParticleSet, resampler: str, threshold: float, rng: np.random.Generator):
-    """The decision of step 3: ``(parents, N_eff)``, the indices the resampler draws (M,), or None when
-    :math:`N_\\text{eff} \\ge \\text{threshold}\\cdot M` (``threshold`` 1.0: always draw)."""
+    """The decision of step 3: ``(parents, N_eff, w)``, the indices the resampler draws (M,), or None when
+    :math:`N_\\text{eff} \\ge \\text{threshold}\\cdot M` (``threshold`` 1.0: always draw); ``w`` the
+    normalised weights it drew them with."""
     w = np.empty(len(particles))
     n_eff = normalise_weights(np.asarray(particles.logw, dtype=float), w)  # and N_eff = 1 / Σ w²
     if threshold >= 1.0 or n_eff < threshold * len(particles):  # 1.0: at every call (the write-up)
-        return get_resampler(resampler)(w, rng), n_eff
-    return None, n_eff
+        return get_resampler(resampler)(w, rng), n_eff, w
+    return None, n_eff, w
 
 
 def combined_pose(poses, w) -> np.ndarray:
@@ -820,7 +821,7 @@ class FilterRun:
         self.used += int(ok.sum())
         self.rejected += int((~ok).sum())
         before = self.particles
-        parents, n_eff = draw_parents(before, self.params.resampler, self.params.resample_threshold, self.rng)
+        parents, n_eff, w = draw_parents(before, self.params.resampler, self.params.resample_threshold, self.rng)
         did = parents is not None
         if did:
             self.particles = before.select(parents)
@@ -829,7 +830,7 @@ class FilterRun:
         self.n_resamples += did
         self.ess_t.append(t)
         self.ess.append(n_eff)
-        self.w = np.full(len(self.particles), 1.0 / len(self.particles)) if did else self.particles.weights
+        self.w = np.full(len(self.particles), 1.0 / len(self.particles)) if did else w
         weighted_mean_pose(self.particles.poses, self.w, self.pose_mean[e])
         self.pose_best[e] = self.particles.poses[int(np.argmax(self.w))]
 
