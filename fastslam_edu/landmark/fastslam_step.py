@@ -202,9 +202,9 @@ def standard_normals(rng, out):
     holds the numbers of ``rng.standard_normal((M, L, k))[m, t]``.
 
     Each particle's normals are consecutive in the random stream (its whole segment, step by
-    step), and stored by step, the order in which :func:`sample_segment` reads them. Compiled,
-    a normal costs a third of numpy's; the call costs ~10 µs more (numba unpacks the
-    Generator), so it pays for large segments only.
+    step), and stored by step, the order in which :func:`sample_segment` reads them. Each call
+    unpacks the Generator (a fixed cost), so small segments are left to numpy
+    (:func:`fastslam_edu.landmark.fastslam.draw_normals`).
     """
     n_steps, k, m_count = out.shape
     flat = out.reshape(-1)
