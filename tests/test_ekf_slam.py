@@ -34,7 +34,8 @@ from fastslam_edu.landmark.ekf_slam import (NEW, SET_ASIDE, EKFSLAMParams, EKFSL
                                             add_new_landmark, associate, association_distances, correlation_matrix,
                                             full_measurement_jacobian, jacobian_inverse_pose, landmark_slice,
                                             measurement_jacobian, motion_jacobian, motion_noise_covariance, predict,
-                                            predict_segment, run_ekf_slam, score_association, update)
+                                            predict_segment, run_ekf_slam, update)
+from fastslam_edu.evaluation.association import association_accuracy, match_landmarks
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 
 CONTROL = MotionNoise(mode="control", sigma_v=0.02, sigma_omega=0.05)
@@ -446,15 +447,10 @@ def test_near_duplicate_pair_is_split_only_with_mutual_exclusion():
     np.testing.assert_array_equal(associate(far, 25.0, mutual_exclusion=True), [0, SET_ASIDE])  # d²(0) <= 25
 
 
-def test_score_association_matches_map_to_truth_and_counts_spurious():
-    # map landmark 0 = truth 1 (3 sightings, one of truth 0: a merge), map 1 = truth 0, map 2 spurious
-    sighting_map = np.array([0, 0, 0, 1, 1, 2, -2, 0])
-    truth = np.array([1, 1, 0, 0, 0, 0, 1, 1])
-    s = score_association(sighting_map, truth, n_map=3, n_true=3)
-    np.testing.assert_array_equal(s.map_subject, [1, 0, -1])
-    np.testing.assert_array_equal(s.map_landmark, [1, 0, -1])
-    np.testing.assert_array_equal(s.correct, [1, 1, 0, 1, 1, 0, 0, 1])
-    assert s.accuracy == pytest.approx(5 / 8) and (s.landmarks_in_map, s.landmarks_spurious) == (3, 1)
+def scored(result, data, stream):
+    """The map matched to the surveyed landmarks, and the association accuracy (evaluation.association)."""
+    match = match_landmarks(result.landmarks, data.landmark_positions)
+    return match, association_accuracy(result.history, stream.landmark, result.landmark_ident, match)
 
 
 @pytest.fixture(scope="module")
@@ -468,29 +464,29 @@ def unknown_runs(runs):
 
 def test_unknown_correspondences_associate_correctly_in_simulation(unknown_runs):
     for data, stream, _, result in unknown_runs:
-        a = result.association
-        assert result.correspondences == "unknown" and a.accuracy > 0.99, a.accuracy
-        assert a.landmarks_spurious == 0 and a.landmarks_in_map == result.observed.sum() >= 8
-        err = np.hypot(*(result.landmarks_mean - data.landmark_positions)[result.observed].T)
+        match, accuracy = scored(result, data, stream)
+        assert result.correspondences == "unknown" and accuracy > 0.99, accuracy
+        assert (match >= 0).all() and len(result.landmarks) == len(np.unique(stream.landmark)) >= 8
+        err = np.hypot(*(result.landmarks - data.landmark_positions[match]).T)
         assert err.mean() < 0.1
     # the test can fail: a threshold far too small splits landmarks into spurious copies
     data, stream, _, _ = unknown_runs[0]
     eager = run_ekf_slam(stream, EKFSLAMParams.from_fastslam(simulator_params(SimConfig(duration=60.0))).replace(
         correspondences="unknown", new_landmark_chi2=0.05))
-    assert eager.association.landmarks_spurious > 5 and eager.association.accuracy < 0.9
+    match, accuracy = scored(eager, data, stream)
+    assert (match < 0).sum() > 5 and accuracy < 0.9
 
 
 def test_without_barcodes_same_numbers_when_association_is_unambiguous(unknown_runs):
     for data, stream, known, unknown in unknown_runs:
-        assert unknown.association.accuracy == 1.0
-        np.testing.assert_array_equal(unknown.association.map_subject[unknown.sighting_map], stream.landmark)
+        match, accuracy = scored(unknown, data, stream)
+        assert accuracy == 1.0
+        np.testing.assert_array_equal(match[unknown.sighting_map], stream.landmark)
         np.testing.assert_array_equal(known.sighting_map, stream.landmark)
-        np.testing.assert_array_equal(unknown.observed, known.observed)
+        assert sorted(match) == np.flatnonzero(known.observed).tolist()
         np.testing.assert_allclose(unknown.pose_mean, known.pose_mean, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(unknown.landmarks_mean[known.observed], known.landmarks_mean[known.observed],
-                                   rtol=0, atol=1e-12)
-        np.testing.assert_allclose(unknown.landmarks_cov[known.observed], known.landmarks_cov[known.observed],
-                                   rtol=0, atol=1e-15)
+        np.testing.assert_allclose(unknown.landmarks_mean, known.landmarks_mean[match], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(unknown.landmarks_cov, known.landmarks_cov[match], rtol=0, atol=1e-15)
 
 
 def test_known_correspondences_ignore_the_association_settings(runs):
@@ -498,7 +494,7 @@ def test_known_correspondences_ignore_the_association_settings(runs):
     params = EKFSLAMParams.from_fastslam(simulator_params(SimConfig(duration=60.0)))
     other = run_ekf_slam(stream, params.replace(new_landmark_chi2=1.0, mutual_exclusion=False))
     np.testing.assert_array_equal(first.cov, other.cov)
-    assert first.correspondences == "known" and first.association is None
+    assert first.correspondences == "known"
 
 
 def test_association_settings_are_checked():
@@ -516,8 +512,7 @@ def test_new_landmark_max_range_sets_far_first_sightings_aside(unknown_runs):
     params = EKFSLAMParams.from_fastslam(simulator_params(SimConfig(duration=60.0)))
     limit = float(np.median(stream.z[:, 0]))
     near = run_ekf_slam(stream, params.replace(correspondences="unknown", new_landmark_max_range=limit))
-    born = [np.flatnonzero(near.sighting_map == m)[0] for m in range(near.association.landmarks_in_map)]
-    assert (stream.z[born, 0] <= limit).all() and not (stream.z[[np.flatnonzero(free.sighting_map == m)[0] for m in
-                                                                 range(free.association.landmarks_in_map)], 0]
-                                                      <= limit).all()
+    born = [np.flatnonzero(near.sighting_map == m)[0] for m in range(len(near.landmarks))]
+    born_free = [np.flatnonzero(free.sighting_map == m)[0] for m in range(len(free.landmarks))]
+    assert (stream.z[born, 0] <= limit).all() and not (stream.z[born_free, 0] <= limit).all()
     assert near.measurements_rejected > free.measurements_rejected == 0

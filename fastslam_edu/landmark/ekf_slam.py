@@ -66,10 +66,9 @@ Mahalanobis distance :math:`d_k^2 = \\nu_k^\\top Q_k^{-1}\\nu_k` to every map la
 set aside (too far to update, too near to be new). With ``mutual_exclusion`` the sightings of one
 instant are associated jointly (:func:`associate`, an assignment problem): two sightings of one
 instant never go to the same map landmark. The gate's escape does not apply (a sighting far from
-everything makes a new landmark instead). The barcodes are used only after the run, to score
-(:func:`score_association`): map landmarks are matched one-to-one to the surveyed ones with
-:func:`scipy.optimize.linear_sum_assignment` (maximising the sightings they share); unmatched map
-landmarks are *spurious*.
+everything makes a new landmark instead). The barcodes are used only after the run, to score it
+as FastSLAM's associations are (:mod:`fastslam_edu.evaluation.association`): the map's landmarks
+are matched one-to-one to the surveyed ones; unmatched map landmarks are *spurious*.
 
 The noise settings are FastSLAM's (:class:`EKFSLAMParams`, defaults taken from
 :class:`~fastslam_edu.landmark.fastslam.FastSLAMParams`), so that the two filters
@@ -113,8 +112,6 @@ __all__ = [
     "association_distances",
     "associate",
     "add_new_landmark",
-    "AssociationScore",
-    "score_association",
     "run_ekf_slam",
 ]
 
@@ -633,54 +630,6 @@ def add_new_landmark(state: EKFSLAMState, z, R) -> int:
     return K
 
 
-@dataclass
-class AssociationScore:
-    """How a run's associations compare with the true landmarks (:func:`score_association`).
-
-    Attributes
-    ----------
-    map_subject : (N,) int, the surveyed landmark index matched to each map landmark, -1 if none (spurious)
-    map_landmark : (K,) int, the map landmark matched to each surveyed landmark, -1 if none
-    correct : (n,) bool, sighting ``j``'s map landmark is matched to its true landmark
-    accuracy : float, ``correct.mean()`` (sightings set aside count as wrong)
-    landmarks_in_map, landmarks_spurious : int, map landmarks made, and those matched to no surveyed one
-    """
-
-    map_subject: np.ndarray
-    map_landmark: np.ndarray
-    correct: np.ndarray
-    accuracy: float
-    landmarks_in_map: int
-    landmarks_spurious: int
-
-
-def score_association(sighting_map, truth, n_map: int, n_true: int) -> AssociationScore:
-    """Score associations against the truth, after matching map landmarks to true ones.
-
-    ``sighting_map`` (n,): the map landmark each sighting went to (< 0: set aside); ``truth`` (n,): its
-    true landmark index (0 … ``n_true`` - 1). The matching is one-to-one and maximises the number of
-    sightings a map landmark and its true landmark share (:func:`scipy.optimize.linear_sum_assignment`
-    on the (``n_map``, ``n_true``) table of counts); a pair sharing no sighting is not a match.
-    """
-    from scipy.optimize import linear_sum_assignment
-
-    a = np.asarray(sighting_map, dtype=int).reshape(-1)
-    t = np.asarray(truth, dtype=int).reshape(-1)
-    if a.shape != t.shape:
-        raise ValueError(f"score_association: sighting_map {a.shape} and truth {t.shape} differ in length")
-    counts = np.zeros((n_map, n_true), dtype=np.int64)
-    used = a >= 0
-    np.add.at(counts, (a[used], t[used]), 1)
-    map_subject, map_landmark = np.full(n_map, -1), np.full(n_true, -1)
-    for i, k in zip(*linear_sum_assignment(counts, maximize=True)):
-        if counts[i, k] > 0:
-            map_subject[i], map_landmark[k] = k, i
-    correct = used & (map_subject[np.where(used, a, 0)] == t) if n_map else np.zeros(len(a), dtype=bool)
-    return AssociationScore(map_subject=map_subject, map_landmark=map_landmark, correct=correct,
-                            accuracy=float(correct.mean()) if len(a) else float("nan"), landmarks_in_map=int(n_map),
-                            landmarks_spurious=int((map_subject < 0).sum()))
-
-
 # ---------------------------------------------------------------- the run
 
 
@@ -701,12 +650,12 @@ class EKFSLAMResult:
     correspondences : "known" or "unknown"
     sighting_map : (n,) int, the map landmark each sighting of the stream updated or started (< 0: set aside)
     map_mean, map_cov : (N, 2), (N, 2, 2) the filter's own map, in the order its landmarks were made
-    association : AssociationScore or None, unknown correspondences: the associations scored against the
-        stream's landmark identities (read only after the run)
 
-    With unknown correspondences, ``landmarks_mean``, ``landmarks_cov`` and ``observed`` are the map
-    landmarks matched to the surveyed ones (:func:`score_association`), in the surveyed order, so that the
-    scorers of known correspondences apply; ``mean`` and ``cov`` are the joint state in the map's order.
+    With unknown correspondences ``landmarks_mean``, ``landmarks_cov`` are the filter's own map
+    (``map_mean``, ``map_cov``, all ``observed``): which surveyed landmark each one is, is for a
+    scorer to find (:func:`fastslam_edu.evaluation.association.match_landmarks`). ``history``,
+    ``landmarks`` and ``landmark_ident`` name them as FastSLAM's result with unknown correspondences
+    does (:class:`fastslam_edu.landmark.association.AssociationResult`).
     """
 
     t: np.ndarray
@@ -727,7 +676,21 @@ class EKFSLAMResult:
     sighting_map: np.ndarray | None = None
     map_mean: np.ndarray | None = None
     map_cov: np.ndarray | None = None
-    association: AssociationScore | None = None
+
+    @property
+    def history(self) -> np.ndarray:
+        """The map landmark each sighting went to (< 0: set aside): ``sighting_map``."""
+        return self.sighting_map
+
+    @property
+    def landmarks(self) -> np.ndarray:
+        """The filter's map (N, 2), in the order its landmarks were made: ``map_mean``."""
+        return self.map_mean
+
+    @property
+    def landmark_ident(self) -> np.ndarray:
+        """The identity of each map landmark: its index."""
+        return np.arange(len(self.map_mean))
 
 
 def _measurement_steps(stream: EventStream):
@@ -741,13 +704,13 @@ def _measurement_steps(stream: EventStream):
         start = e + 1
 
 
-def _check_stream(stream: EventStream) -> None:
+def _check_stream(stream: EventStream, unknown: bool) -> None:
     if not isinstance(stream, EventStream):
         raise ValueError(f"run_ekf_slam expects an EventStream, got {type(stream).__name__}")
     if len(stream) == 0:
         raise ValueError("the event stream is empty")
     lm = np.asarray(stream.landmark)
-    if lm.size and (lm.min() < 0 or lm.max() >= stream.n_landmarks):
+    if not unknown and lm.size and (lm.min() < 0 or lm.max() >= stream.n_landmarks):
         raise ValueError(f"the event stream sees landmark indices outside [0, {stream.n_landmarks})")
     z = finite_array("z", stream.z, "run_ekf_slam", (2,))
     if (z[:, 0] < 0).any():
@@ -765,7 +728,7 @@ def run_ekf_slam(stream: EventStream, params: EKFSLAMParams | FastSLAMParams = E
     * unknown: :func:`associate` (the sightings of the step jointly if ``params.mutual_exclusion``,
       on the distances before the step's updates; otherwise one by one, each after the previous
       update), then :func:`update` of the chosen landmark or :func:`add_new_landmark`.
-      ``stream.landmark`` is read only after the run, by :func:`score_association`.
+      ``stream.landmark`` is not read (:mod:`fastslam_edu.evaluation.association` scores the run).
 
     Parameters
     ----------
@@ -784,7 +747,7 @@ def run_ekf_slam(stream: EventStream, params: EKFSLAMParams | FastSLAMParams = E
     if correspondences is not None:
         params = params.replace(correspondences=correspondences)  # checks the value
     unknown = params.correspondences == "unknown"
-    _check_stream(stream)
+    _check_stream(stream, unknown)
     x0 = stream.x0 if x0 is None else x0
     if x0 is None:
         raise ValueError("no initial pose: the stream has no groundtruth; pass x0=(x, y, theta)")
@@ -819,19 +782,14 @@ def run_ekf_slam(stream: EventStream, params: EKFSLAMParams | FastSLAMParams = E
         pose_cov.append(state.sigma[:3, :3].copy())
     seconds = time.perf_counter() - t_start
     map_mean, map_cov = state.landmarks()
-    mu, cov, observed, score = map_mean, map_cov, state.seen.copy(), None
-    if unknown:  # scoring only: the stream's identities are read from here on
-        score = score_association(sighting_map, stream.landmark, state.n_landmarks, stream.n_landmarks)
-        observed = score.map_landmark >= 0
-        mu, cov = np.full((stream.n_landmarks, 2), np.nan), np.full((stream.n_landmarks, 2, 2), np.nan)
-        mu[observed], cov[observed] = map_mean[score.map_landmark[observed]], map_cov[score.map_landmark[observed]]
+    mu, cov, observed = map_mean, map_cov, state.seen.copy()
     return EKFSLAMResult(
         t=np.asarray(stream.t, dtype=float), pose_mean=pose_mean, landmarks_mean=mu, landmarks_cov=cov,
         observed=observed, mean=state.mu, cov=state.sigma, update_t=np.asarray(update_t),
         pose_cov=np.asarray(pose_cov).reshape(-1, 3, 3), measurements_used=counts[INITIALISED] + counts[UPDATED],
         measurements_rejected=counts[REJECTED], filter_seconds=seconds, params=params,
         landmark_subjects=np.asarray(stream.landmark_subjects), correspondences=params.correspondences,
-        sighting_map=sighting_map, map_mean=map_mean, map_cov=map_cov, association=score,
+        sighting_map=sighting_map, map_mean=map_mean, map_cov=map_cov,
     )
 
 
