@@ -92,6 +92,11 @@ class Sightings(NamedTuple):
 #: cosine and sine are computed directly (:func:`exact_large_turns`).
 SMALL_TURN = 0.2
 
+#: Taylor coefficients of :math:`\\cos x = 1 - x^2/2! + x^4/4! - \\dots` and :math:`\\sin x / x = 1 - x^2/3! + \\dots`
+#: after the leading 1 (multiplications: a division by a constant would be computed at every step).
+COS_SERIES = (-1.0 / 2, 1.0 / 24, -1.0 / 720, 1.0 / 40320)
+SIN_SERIES = (-1.0 / 6, 1.0 / 120, -1.0 / 5040, 1.0 / 362880)
+
 
 @njit(cache=True, inline="always")
 def noisy_increments(v, omega, dt, noise, e, m):
@@ -123,8 +128,8 @@ def turn(c, s, dtheta):
     arithmetic, which the compiler runs on several particles at once.
     """
     d2 = dtheta * dtheta
-    cos_d = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)))
-    sin_d = dtheta * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0 * (1.0 - d2 / 72.0))))
+    cos_d = 1.0 + d2 * (COS_SERIES[0] + d2 * (COS_SERIES[1] + d2 * (COS_SERIES[2] + d2 * COS_SERIES[3])))
+    sin_d = dtheta * (1.0 + d2 * (SIN_SERIES[0] + d2 * (SIN_SERIES[1] + d2 * (SIN_SERIES[2] + d2 * SIN_SERIES[3]))))
     return c * cos_d - s * sin_d, s * cos_d + c * sin_d
 
 
