@@ -65,8 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "default: groundtruth at the first step")
     run.add_argument("--correspondences", choices=("known", "unknown"), default="known",
                      help="known: the barcodes say which landmark a sighting is (default); unknown: FastSLAM decides "
-                          "per particle (fastslam_edu.landmark.association), every sighting given without its barcode "
-                          "(other robots and misread barcodes included); the barcodes only score the associations")
+                          "per particle (fastslam_edu.landmark.association), EKF-SLAM by nearest neighbour (--filter "
+                          "ekf), every sighting given without its barcode (other robots and misread barcodes "
+                          "included); the barcodes only score the associations")
     run.add_argument("--mode", choices=MODES, default="slam")
     run.add_argument("--proposal", choices=PROPOSALS, default="motion",
                      help="motion: FastSLAM 1.0 (default); fastslam2: FastSLAM 2.0's proposal")
@@ -176,15 +177,21 @@ def _check_ekf_options(args) -> None:
 
 
 def cmd_run_ekf(args) -> int:
-    """``fastslam-edu run --filter ekf``: EKF-SLAM on one robot, the same figures and JSON keys as FastSLAM's run."""
+    """``fastslam-edu run --filter ekf``: EKF-SLAM on one robot, the same figures and JSON keys as FastSLAM's run
+    (with ``--correspondences unknown``, as FastSLAM's run without barcodes)."""
     from fastslam_edu.app.experiment import run_mrclam_ekf
+    from fastslam_edu.landmark.ekf_slam import EKFSLAMParams
 
     _check_ekf_options(args)
-    result, summary, ctx = run_mrclam_ekf(args.data, args.robot, rate=args.rate, x0=args.x0,
+    params = EKFSLAMParams(correspondences=args.correspondences)
+    result, summary, ctx = run_mrclam_ekf(args.data, args.robot, params, rate=args.rate, x0=args.x0,
                                           groundtruth_file=args.groundtruth, audit=not args.no_audit)
     summary.update(filter="ekf", seed=args.seed)
-    _report(summary, RUN_KEYS, args.json)
-    if args.plot:
+    _report(summary, UNKNOWN_KEYS if args.correspondences == "unknown" else RUN_KEYS, args.json)
+    if args.plot and args.correspondences == "unknown":
+        _unknown_figure(result, ctx, f"{args.data.name} robot {args.robot}, EKF-SLAM, unknown correspondences",
+                        "map").savefig(args.plot, dpi=120)
+    elif args.plot:
         _ekf_figure(result, ctx, f"{args.data.name} robot {args.robot}, EKF-SLAM").savefig(args.plot, dpi=120)
     return 0
 
@@ -244,22 +251,26 @@ def cmd_run_unknown(args) -> int:
     summary["filter"] = "fastslam"
     _report(summary, UNKNOWN_KEYS, args.json)
     if args.plot:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        truth = ctx["dataset"].landmark_positions
-        fig, ax = plt.subplots(figsize=(7, 6))
-        ax.plot(result.pose_mean[:, 0], result.pose_mean[:, 1], lw=0.6, label="path (mean)")
-        ax.plot(truth[:, 0], truth[:, 1], "k*", label="surveyed landmarks")
-        ax.plot(result.landmarks[:, 0], result.landmarks[:, 1], "r+", label="map (best particle)")
-        ax.set(xlabel="x [m]", ylabel="y [m]", aspect="equal",
-               title=f"{args.data.name} robot {args.robot}, unknown correspondences, seed {args.seed}")
-        ax.legend(fontsize=7)
-        fig.savefig(args.plot, dpi=120)
-        plt.close(fig)
+        _unknown_figure(result, ctx, f"{args.data.name} robot {args.robot}, unknown correspondences, seed {args.seed}",
+                        "map (best particle)").savefig(args.plot, dpi=120)
     return 0
+
+
+def _unknown_figure(result, ctx, title: str, map_label: str):
+    """The mean path, the surveyed landmarks and the filter's own map."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    truth = ctx["dataset"].landmark_positions
+    fig, ax = plt.subplots(figsize=(7, 6))
+    ax.plot(result.pose_mean[:, 0], result.pose_mean[:, 1], lw=0.6, label="path (mean)")
+    ax.plot(truth[:, 0], truth[:, 1], "k*", label="surveyed landmarks")
+    ax.plot(result.landmarks[:, 0], result.landmarks[:, 1], "r+", label=map_label)
+    ax.set(xlabel="x [m]", ylabel="y [m]", aspect="equal", title=title)
+    ax.legend(fontsize=7)
+    return fig
 
 
 def _report(summary: dict, keys, json_path) -> None:
@@ -278,9 +289,6 @@ def cmd_run(args) -> int:
     if not args.data.is_dir():
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
     if args.filter == "ekf":
-        if args.correspondences == "unknown":
-            raise ValueError("--correspondences unknown is FastSLAM's (fastslam_edu.landmark.association), "
-                             "not EKF-SLAM's: drop --filter ekf")
         return cmd_run_ekf(args)
     if args.correspondences == "unknown":
         return cmd_run_unknown(args)

@@ -91,31 +91,25 @@ def dropped_sightings_notes(log: RobotLog) -> list[str]:
     return notes
 
 
+def _scored(counts: dict, result, poses, landmarks, dataset: Dataset, log: RobotLog) -> dict:
+    """``counts`` and the errors of ``poses`` (N, 3) and ``landmarks`` (K, 2) at ``result.t`` (:func:`score_estimate`)."""
+    return counts | score_estimate(result.t, poses, landmarks, result.observed, result.landmark_subjects, dataset, log)
+
+
 def summarize(result: FastSLAMResult, dataset: Dataset, log: RobotLog) -> dict:
     """The figures of a run against groundtruth (see the module docstring)."""
-    out: dict = {
-        "steps": int(len(result.t)),
-        "measurements_used": result.measurements_used,
-        "measurements_rejected": result.measurements_rejected,
-        "resamples": result.n_resamples,
-        "filter_seconds": round(result.filter_seconds, 4),
-    }
-    out.update(score_estimate(result.t, result.pose_mean, result.landmarks_mean, result.observed,
-                              result.landmark_subjects, dataset, log))
-    return out
+    counts = {"steps": int(len(result.t)), "measurements_used": result.measurements_used,
+              "measurements_rejected": result.measurements_rejected, "resamples": result.n_resamples,
+              "filter_seconds": round(result.filter_seconds, 4)}
+    return _scored(counts, result, result.pose_mean, result.landmarks_mean, dataset, log)
 
 
 def summarize_smoother(result: SmootherResult, dataset: Dataset, log: RobotLog) -> dict:
     """The figures of a :func:`fastslam_edu.landmark.smoother.smooth` solution, scored as a filter run is."""
-    out: dict = {
-        "keyframes": int(len(result.t)),
-        "measurements_used": result.measurements_used,
-        "measurements_rejected": result.measurements_rejected,
-        "iterations": result.iterations,
-        "smoother_seconds": round(result.seconds, 4),
-    }
-    out.update(score_estimate(result.t, result.poses, result.landmarks, result.observed,
-                              result.landmark_subjects, dataset, log))
+    counts = {"keyframes": int(len(result.t)), "measurements_used": result.measurements_used,
+              "measurements_rejected": result.measurements_rejected, "iterations": result.iterations,
+              "smoother_seconds": round(result.seconds, 4)}
+    out = _scored(counts, result, result.poses, result.landmarks, dataset, log)
     out["landmark_std_mean_m"] = landmark_std_mean(result.landmarks_cov, result.observed)
     return out
 
@@ -266,34 +260,37 @@ def summarize_ekf(result: EKFSLAMResult, dataset: Dataset, log: RobotLog) -> dic
     No resampling in an EKF: no ``resamples``. ``landmark_std_mean_m``: the mean over the
     observed landmarks of :math:`\\sqrt{\\mathrm{tr}\\,\\Sigma_k}`, the standard deviation the filter reports.
     """
-    out: dict = {
-        "steps": int(len(result.t)),
-        "measurements_used": result.measurements_used,
-        "measurements_rejected": result.measurements_rejected,
-        "filter_seconds": round(result.filter_seconds, 4),
-    }
-    out.update(score_estimate(result.t, result.pose_mean, result.landmarks_mean, result.observed,
-                              result.landmark_subjects, dataset, log))
+    counts = {"steps": int(len(result.t)), "measurements_used": result.measurements_used,
+              "measurements_rejected": result.measurements_rejected, "filter_seconds": round(result.filter_seconds, 4)}
+    out = _scored(counts, result, result.pose_mean, result.landmarks_mean, dataset, log)
     out["landmark_std_mean_m"] = landmark_std_mean(result.landmarks_cov, result.observed)
     return out
 
 
 def run_mrclam_ekf(path, robot: int, params: EKFSLAMParams = EKFSLAMParams(), *, rate: str = "full", x0=None,
                    **load_options):
-    """Load, run and score EKF-SLAM (known correspondences) on one robot of a MR.CLAM dataset.
+    """Load, run and score EKF-SLAM on one robot of a MR.CLAM dataset.
 
     As :func:`run_mrclam` (same loading, audit, initial pose and scores), with
-    :func:`fastslam_edu.landmark.ekf_slam.run_ekf_slam` as the filter. Deterministic: no seed.
+    :func:`fastslam_edu.landmark.ekf_slam.run_ekf_slam` as the filter. Deterministic: no seed. With
+    ``params.correspondences == "unknown"`` every sighting is given without its barcode, and the run is
+    scored as FastSLAM's with unknown correspondences (:func:`anonymous_stream`, :func:`summarize_unknown`).
     Returns ``(result, summary, context)``.
     """
     dataset, log, notes, stream = prepare_run(path, robot, rate=rate, x0=x0, **load_options)
-    result = run_ekf_slam(stream, params)
-    summary = summarize_ekf(result, dataset, log)
-    summary.update(
-        dataset=str(path), robot=robot, rate=rate, params=params.to_dict(), notes=notes,
-        x0=[float(v) for v in stream.x0], sightings_skipped=_skipped(log),
-    )
-    return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes}
+    if params.correspondences == "unknown":
+        stream, true_index = anonymous_stream(path, robot, dataset, log, rate=rate, x0=stream.x0)
+        notes = _unknown_notes(notes, log, true_index)
+        result = run_ekf_slam(stream, params)
+        summary = summarize_unknown(result, stream, true_index, dataset, log)
+    else:
+        result, true_index = run_ekf_slam(stream, params), None
+        summary = summarize_ekf(result, dataset, log)
+        summary["sightings_skipped"] = _skipped(log)
+    summary.update(dataset=str(path), robot=robot, rate=rate, params=params.to_dict(), notes=notes,
+                   x0=[float(v) for v in stream.x0])
+    return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes,
+                             "true_index": true_index}
 
 
 # ---------------------------------------------------------------- unknown correspondences
@@ -326,16 +323,37 @@ def anonymous_stream(path, robot: int, dataset: Dataset, log: RobotLog, *, rate:
     return stream, true_index
 
 
+def _unknown_notes(notes, log: RobotLog, true_index) -> list[str]:
+    """The notes of a run without barcodes: none about skipped sightings (nothing is skipped), one about clutter."""
+    return [n for n in notes if n not in dropped_sightings_notes(log)] + [
+        f"{int(np.sum(np.asarray(true_index) < 0))} sighting(s) of other robots and unknown barcodes given to the "
+        "filter as clutter (without identity, like every sighting)"]
+
+
+def _unknown_counts(result) -> dict:
+    """What a run with unknown correspondences reports of itself: FastSLAM's or EKF-SLAM's."""
+    if isinstance(result, EKFSLAMResult):  # one hypothesis: nothing provisional, no resampling
+        return {"landmarks_created": int(len(result.landmarks)), "filter_seconds": round(result.filter_seconds, 4)}
+    return {"landmarks_provisional": result.n_provisional, "landmarks_created": result.landmarks_created,
+            "resamples": result.n_resamples, "filter_seconds": round(result.filter_seconds, 4)}
+
+
 def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLog) -> dict:
     """The figures of a run with unknown correspondences: association scores, map counts and the usual errors.
 
-    The map's landmarks are matched to the surveyed ones (:func:`fastslam_edu.evaluation.association.match_landmarks`);
+    The map's landmarks are matched to the surveyed ones (:func:`fastslam_edu.evaluation.association.match_landmarks`,
+    starting from the SE(2) motion that fits the filter's mean path to the groundtruth when there is one);
     the landmark errors are those of the matched landmarks.
     """
     from fastslam_edu.evaluation import association as score
 
     truth = dataset.landmark_positions
-    match = score.match_landmarks(result.landmarks, truth)
+    start = None
+    if log.groundtruth is not None:  # the map is matched in the frame that best fits the path to the groundtruth
+        gt = log.groundtruth["time"].to_numpy()
+        inside = (result.t >= gt[0]) & (result.t <= gt[-1])
+        start = score.path_alignment(result.pose_mean[inside, :2], groundtruth_at(log, result.t[inside])[:, :2])
+    match = score.match_landmarks(result.landmarks, truth, start=start)
     landmarks = np.full(truth.shape, np.nan)
     landmarks[match[match >= 0]] = result.landmarks[match >= 0]
     observed = np.zeros(len(truth), dtype=bool)
@@ -350,10 +368,7 @@ def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLo
         "association_accuracy_oracle": None,
         "landmarks_in_map": score.landmarks_in_map(result.landmarks),
         "landmarks_spurious": int(np.sum(match < 0)),
-        "landmarks_provisional": result.n_provisional,
-        "landmarks_created": result.landmarks_created,
-        "resamples": result.n_resamples,
-        "filter_seconds": round(result.filter_seconds, 4),
+        **_unknown_counts(result),
     }
     if log.groundtruth is not None:
         step = np.searchsorted(stream.offsets, np.arange(len(true_index)), side="right") - 1
@@ -362,7 +377,8 @@ def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLo
         inside = (t >= gt[0] - 0.5) & (t <= gt[-1] + 0.5)
         poses = np.full((len(t), 3), np.nan)
         poses[inside] = groundtruth_at(log, t[inside])
-        R = result.params.filter.measurement_covariance(stream.z)
+        model = result.params if isinstance(result, EKFSLAMResult) else result.params.filter
+        R = model.measurement_covariance(stream.z)
         out["association_accuracy_oracle"] = score.association_accuracy_oracle(
             poses[inside], stream.z[inside], R[inside], truth, np.asarray(true_index)[inside])
     out.update(score_estimate(result.t, result.pose_mean, landmarks, observed, dataset.landmark_subjects,
@@ -385,9 +401,7 @@ def run_mrclam_unknown(path, robot: int, params=None, seed: int = 0, *, rate: st
     params = AssociationParams() if params is None else params
     dataset, log, notes, known = prepare_run(path, robot, rate=rate, x0=x0, **load_options)
     stream, true_index = anonymous_stream(path, robot, dataset, log, rate=rate, x0=known.x0)
-    notes = [n for n in notes if n not in dropped_sightings_notes(log)]  # nothing is skipped here
-    notes.append(f"{int(np.sum(true_index < 0))} sighting(s) of other robots and unknown barcodes given to the "
-                 "filter as clutter (without identity, like every sighting)")
+    notes = _unknown_notes(notes, log, true_index)
     result = run_unknown(stream, params, np.random.default_rng(seed))
     summary = summarize_unknown(result, stream, true_index, dataset, log)
     summary.update(dataset=str(path), robot=robot, rate=rate, seed=seed, params=params.to_dict(), notes=notes,

@@ -5,7 +5,8 @@ sees a barcode; the barcodes only score it:
 
 * :func:`match_landmarks`: the map's landmarks matched one to one to the surveyed ones
   (``scipy.optimize.linear_sum_assignment`` on the distances, after the SE(2) alignment
-  of the matched pairs; a pair further apart than ``max_distance`` is no match);
+  of the matched pairs, starting from the alignment of the path (:func:`path_alignment`);
+  a pair further apart than ``max_distance`` is no match);
 * :func:`association_accuracy`: the fraction of landmark sightings that the
   highest-weight particle assigned to the map landmark matched to the sighting's
   true subject;
@@ -37,7 +38,7 @@ def _assign(estimate, truth, max_distance):
 
 
 def match_landmarks(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE, align: bool = True,
-                    iterations: int = 3) -> np.ndarray:
+                    iterations: int = 3, start=None) -> np.ndarray:
     """For each map landmark (L, 2), the index of the surveyed landmark (K, 2) it is matched to, or -1.
 
     The one-to-one assignment that minimises the summed distance
@@ -46,13 +47,16 @@ def match_landmarks(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE, a
     (:func:`fastslam_edu.evaluation.metrics.align_se2`), and matched again, ``iterations`` times: SLAM
     recovers the map only up to such a motion, and where surveyed landmarks stand a few tenths of a
     metre apart a small offset of the whole map would otherwise match each landmark to its neighbour.
+    ``start``: ``(R (2, 2), t (2,))``, the motion the map is moved by before the first assignment
+    (:func:`path_alignment`: the motion that fits the filter's path to the groundtruth); without it, a
+    map that SLAM placed more than ``max_distance`` from the survey as a whole would match nothing.
     """
     estimate = np.asarray(estimate, dtype=float).reshape(-1, 2)
     truth = np.asarray(truth, dtype=float).reshape(-1, 2)
     if len(estimate) == 0 or len(truth) == 0:
         return np.full(len(estimate), -1, dtype=np.int64)
-    out = _assign(estimate, truth, max_distance)
-    moved = estimate
+    moved = estimate if start is None else apply_se2(estimate, *start)
+    out = _assign(moved, truth, max_distance)
     for _ in range(iterations if align else 0):
         ok = out >= 0
         if ok.sum() < 3:
@@ -66,14 +70,24 @@ def match_landmarks(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE, a
     return out
 
 
+def path_alignment(path_xy, truth_xy):
+    """``(R, t)``: the SE(2) motion that best maps the filter's positions (N, 2) onto the groundtruth's (N, 2)
+    at the same times (:func:`fastslam_edu.evaluation.metrics.align_se2`); rows with NaN are left out. The
+    map of a SLAM run is placed in the frame of its path, so the same motion brings the map near the survey."""
+    path_xy, truth_xy = np.asarray(path_xy, dtype=float), np.asarray(truth_xy, dtype=float)
+    ok = np.isfinite(path_xy).all(axis=1) & np.isfinite(truth_xy).all(axis=1)
+    R, t, _ = align_se2(path_xy[ok], truth_xy[ok])
+    return R, t
+
+
 def landmarks_in_map(estimate) -> int:
     """How many landmarks the map holds."""
     return int(np.asarray(estimate, dtype=float).reshape(-1, 2).shape[0])
 
 
-def landmarks_spurious(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE) -> int:
-    """Map landmarks matched to no surveyed landmark (:func:`match_landmarks`)."""
-    return int(np.sum(match_landmarks(estimate, truth, max_distance) < 0))
+def landmarks_spurious(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE, start=None) -> int:
+    """Map landmarks matched to no surveyed landmark (:func:`match_landmarks`, with its ``start``)."""
+    return int(np.sum(match_landmarks(estimate, truth, max_distance, start=start) < 0))
 
 
 def association_accuracy(history, true_index, map_ident, map_match) -> float:
@@ -147,5 +161,6 @@ def merged_and_split(table, share: float = 0.2) -> tuple[int, int]:
     return int(np.sum((rows >= share).sum(axis=1) >= 2)), int(np.sum((cols >= share).sum(axis=0) >= 2))
 
 
-__all__ = ["association_table", "merged_and_split", "MAX_MATCH_DISTANCE", "match_landmarks", "landmarks_in_map", "landmarks_spurious", "association_accuracy",
+__all__ = ["association_table", "merged_and_split", "MAX_MATCH_DISTANCE", "match_landmarks", "path_alignment",
+           "landmarks_in_map", "landmarks_spurious", "association_accuracy",
            "oracle_association", "association_accuracy_oracle"]

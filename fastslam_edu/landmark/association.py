@@ -3,25 +3,34 @@
 Montemerlo et al. (2003) and *Probabilistic Robotics* §13.8. The filter never
 sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
 
-1. **Maximum-likelihood association** (:func:`best_landmark`): the likelihood
+1. **Maximum-likelihood association** (:func:`choose_landmarks`): the likelihood
    :math:`\\mathcal N(z - \\hat z_j; 0, Q_j)` of each landmark :math:`j` the particle
    holds, and the likelihood :math:`p_0` of a landmark never seen before. The
    most likely hypothesis wins: an existing landmark is updated by its EKF
-   (:func:`fastslam_edu.core.ekf.ekf_update`) and the weight grows by its
-   log-likelihood; if :math:`p_0` wins a new landmark is initialised
-   (:func:`fastslam_edu.core.ekf.ekf_initialise`) and the weight grows by
-   :math:`\\log p_0`.
+   (:func:`fastslam_edu.core.ekf.ekf_update`) and the weight grows by the
+   log-likelihood the decision was made with; if :math:`p_0` wins a new landmark is
+   initialised (:func:`fastslam_edu.core.ekf.ekf_initialise`) and the weight grows by
+   :math:`\\log p_0`. Only sightings within the range where negative evidence can
+   check them (``min_range`` … ``max_range``) start landmarks.
 2. **Mutual exclusion** (optional, ``exclusive``): within one camera frame two
-   sightings are two different things, so a landmark taken by one sighting of
-   the instant is not offered to the next.
+   sightings are two different things. The pairs (sighting, landmark) of the instant
+   are taken most likely first, each sighting and each landmark once.
 3. **Negative evidence** (:func:`negative_evidence`): a landmark the particle
    expects to see (inside the camera's field of view and range) at an instant
    when something is seen, but which no sighting of that instant was assigned
-   to, counts a miss. A *provisional* landmark (seen fewer than ``n_confirm``
-   times) is removed once it has been missed ``max_misses`` times more than it
-   has been seen: clutter (another robot, a misread) leaves no trace. A confirmed
-   landmark is removed when its misses reach ``confirmed_miss_ratio`` times its
-   sightings plus ``max_misses`` (a copy that a newer landmark has replaced).
+   to, counts a miss. Each landmark carries the log odds that it is real rather
+   than clutter (:func:`existence_log_odds`), raised by a sighting by
+   :math:`\\log(p_D/p_F)` and lowered by a miss by :math:`\\log((1-p_D)/(1-p_F))`:
+   :math:`p_D` is the probability that the camera reports a landmark in view (on
+   MR.CLAM only 0.1–0.6), :math:`p_F` the probability that clutter (another robot,
+   a misread) is seen again at the same place. A landmark whose log odds fall
+   below zero is removed. The log odds are clamped at ``n_confirm`` sightings' worth,
+   so a copy that a newer landmark has replaced goes after a few dozen misses.
+4. **Confirmation**: sightings of one landmark a fraction of a second apart are not
+   independent (``measurement_correlation_s``, :math:`\\tau`): a landmark counts the
+   evidence :math:`\\sum\\beta`, :math:`\\beta = \\min(1, \\Delta t/\\tau)`, and is *provisional*
+   (not in the map) until it reaches ``n_confirm``: another robot tracked for a few
+   seconds is never confirmed.
 
 The new-landmark likelihood is the Gaussian of a fresh landmark,
 :math:`Q = H\\Sigma H^\\top + R = 2R`, evaluated :math:`d_0` standard deviations away
@@ -31,10 +40,12 @@ The new-landmark likelihood is the Gaussian of a fresh landmark,
 
 and it wins when the most likely landmark is further than :math:`d_0` in
 Mahalanobis distance. What real data adds (:func:`association_loglik`): the
-association's :math:`Q` includes the drift the particle's pose may have made,
-relative to a landmark, since the landmark was last seen (``drift_xy``,
-``drift_theta``, per √s of that time), so that a landmark seen again after a
-long loop is not taken for a new one; the weights are those of table 13.1.
+association's :math:`Q` includes the drift the particle's own pose has made,
+relative to a landmark, since the landmark was last seen: the motion model's
+noise densities (``drift_xy`` :math:`=\\sigma_v`, ``drift_theta`` :math:`=\\sigma_\\omega`,
+per √s) over at most ``drift_cap_s`` seconds (beyond that the other landmarks
+have kept the particle's pose in check). The same likelihood weighs the particle,
+so that deciding and weighing agree.
 
 Each particle therefore carries its own *association history*: resampling keeps
 the particles whose associations explained the sightings well.
@@ -88,24 +99,30 @@ class AssociationParams(Params):
     fov : float
         Half the camera's field of view [rad]: where negative evidence is counted.
     min_range, max_range : float
-        Ranges [m] at which a landmark is expected to be seen.
+        Ranges [m] at which a landmark is expected to be seen, and at which a sighting may start one.
     n_confirm : int
-        Sightings after which a landmark is no longer provisional (and is in the map).
-    max_misses : int
-        A provisional landmark is removed when its misses exceed its sightings by this many.
+        Independent sightings (:math:`\\sum\\beta`) after which a landmark is no longer provisional (and is
+        in the map); also the cap of the existence log odds, in sightings.
+    detection_probability : float
+        :math:`p_D`: the probability that a landmark inside the field of view and range is seen at an
+        instant when the camera sees something (MR.CLAM: 0.1–0.6, by range and bearing; the low end).
+    clutter_probability : float
+        :math:`p_F`: the probability that a "landmark" made from clutter (a passing robot, a misread) is
+        seen again at such an instant. With :math:`p_D` they set the existence log odds (module docstring).
     pose_uncertainty : float
         Scale of the particle set's pose covariance added to the association's likelihoods
         (0: each particle trusts its own pose, as table 13.1; 1: the set's spread).
     provisional_as_new : bool
         A sighting assigned to a provisional landmark weighs the particle with :math:`p_0`, as a
-        new landmark does: a landmark the particle made up recently does not yet explain anything.
+        new landmark does (default False: every landmark the particle holds weighs it, as table 13.1).
     drift_xy, drift_theta : float
         Drift of the pose relative to a landmark per √s since it was last seen [m/√s, rad/√s], added
-        to the association's innovation covariance (0, 0: table 13.1's :math:`Q`).
+        to the association's innovation covariance (0, 0: table 13.1's :math:`Q`). Default: the motion
+        model's :math:`\\sigma_v` and :math:`\\sigma_\\omega` (:class:`FastSLAMParams`).
+    drift_cap_s : float
+        The drift counts at most this long [s].
     association_range_scale : float
         Scale of the range standard deviation in the association's :math:`Q` (1: the filter's :math:`R`).
-    confirmed_miss_ratio : float
-        A confirmed landmark is removed when missed ``ratio × seen + max_misses`` times (inf: never).
     """
 
     filter: FastSLAMParams = field(default_factory=FastSLAMParams)
@@ -116,13 +133,14 @@ class AssociationParams(Params):
     min_range: float = 0.5
     max_range: float = 4.0
     n_confirm: int = 5
-    max_misses: int = 3
+    detection_probability: float = 0.3
+    clutter_probability: float = 0.05
     pose_uncertainty: float = 0.0
-    provisional_as_new: bool = True
+    provisional_as_new: bool = False
     drift_xy: float = 0.02
-    drift_theta: float = 0.02
+    drift_theta: float = 0.05
     association_range_scale: float = 1.0
-    confirmed_miss_ratio: float = 2.0
+    drift_cap_s: float = 5.0
 
     def __post_init__(self):
         if not isinstance(self.filter, FastSLAMParams):
@@ -133,8 +151,13 @@ class AssociationParams(Params):
             raise ValueError(f"resampler must be one of {sorted(RESAMPLER_CODES)}, got {self.filter.resampler!r}")
         if not (math.isfinite(self.new_landmark_chi2) and self.new_landmark_chi2 > 0):
             raise ValueError(f"new_landmark_chi2 must be > 0, got {self.new_landmark_chi2!r}")
-        if int(self.max_landmarks) < 1 or int(self.n_confirm) < 1 or int(self.max_misses) < 1:
-            raise ValueError("max_landmarks, n_confirm and max_misses must be >= 1")
+        if int(self.max_landmarks) < 1 or int(self.n_confirm) < 1:
+            raise ValueError("max_landmarks and n_confirm must be >= 1")
+        if not (self.drift_cap_s >= 0 and self.drift_xy >= 0 and self.drift_theta >= 0):
+            raise ValueError("drift_xy, drift_theta and drift_cap_s must be >= 0")
+        if not 0.0 < self.clutter_probability < self.detection_probability < 1.0:
+            raise ValueError(f"need 0 < clutter_probability < detection_probability < 1, got "
+                             f"{self.clutter_probability!r}, {self.detection_probability!r}")
         if not (0 < self.fov <= math.pi and 0 <= self.min_range < self.max_range):
             raise ValueError(f"need 0 < fov <= pi and 0 <= min_range < max_range, got {self.fov}, "
                              f"{self.min_range}, {self.max_range}")
@@ -144,17 +167,20 @@ class AssociationParams(Params):
         """The settings as the compiled kernels take them (:class:`Rules`)."""
         tau = self.filter.measurement_correlation_s
         return Rules(float(self.new_landmark_chi2), bool(self.exclusive), float(self.fov), float(self.min_range),
-                     float(self.max_range), int(self.n_confirm), int(self.max_misses),
+                     float(self.max_range), int(self.n_confirm),
+                     math.log(self.detection_probability / self.clutter_probability),
+                     math.log((1.0 - self.detection_probability) / (1.0 - self.clutter_probability)),
                      0.0 if tau is None else float(tau), float(self.pose_uncertainty), bool(self.provisional_as_new),
                      float(self.drift_xy), float(self.drift_theta), float(self.association_range_scale),
-                     float(self.confirmed_miss_ratio))
+                     float(self.drift_cap_s))
 
 
 class MapParticles(NamedTuple):
     """The particle set with variable-size maps (M particles, up to Kmax landmarks each), changed in place.
 
     poses (M, 3); mu (M, Kmax, 2); sigma (M, Kmax, 2, 2); n (M,) landmarks held;
-    ident (M, Kmax) identity of each landmark; seen, missed (M, Kmax) counts;
+    ident (M, Kmax) identity of each landmark; seen, missed (M, Kmax) counts; evidence (M, Kmax): the
+    sightings counted as independent, :math:`\\sum\\beta` (:func:`associate_particle`);
     last_t (M, Kmax) time of the last sighting [s]; logw (M,).
     """
 
@@ -165,6 +191,8 @@ class MapParticles(NamedTuple):
     ident: np.ndarray
     seen: np.ndarray
     missed: np.ndarray
+    evidence: np.ndarray
+    log_odds: np.ndarray
     last_t: np.ndarray
     logw: np.ndarray
 
@@ -178,7 +206,7 @@ def initial_particles(n_particles: int, max_landmarks: int, x0) -> MapParticles:
     return MapParticles(np.tile(x0, (M, 1)), np.zeros((M, K, 2)), np.tile(np.eye(2), (M, K, 1, 1)),
                         np.zeros(M, dtype=np.int64), np.full((M, K), -1, dtype=np.int64),
                         np.zeros((M, K), dtype=np.int64), np.zeros((M, K), dtype=np.int64),
-                        np.zeros((M, K)), np.zeros(M))
+                        np.zeros((M, K)), np.zeros((M, K)), np.zeros((M, K)), np.zeros(M))
 
 
 class Rules(NamedTuple):
@@ -190,14 +218,15 @@ class Rules(NamedTuple):
     min_range: float
     max_range: float
     n_confirm: int
-    max_misses: int
+    log_odds_seen: float
+    log_odds_missed: float
     tau: float
     pose_scale: float
     provisional_as_new: bool
     drift_xy: float
     drift_theta: float
     range_scale: float
-    miss_ratio: float
+    drift_cap_s: float
 
 
 # ---------------------------------------------------------------- one particle, one sighting
@@ -235,11 +264,12 @@ def association_loglik(pose, z, R, mu, sigma, cloud, unseen_s, rules):
 
     :math:`P` is ``cloud`` (the particle set's covariance, scaled; zeros: table 13.1's) plus the drift
     the particle's pose may have made relative to the landmark since it was last seen, ``unseen_s``
-    seconds ago: :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\Delta t`
-    (``rules.drift_xy``, ``rules.drift_theta``, per √s).
+    seconds ago: :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\min(\\Delta t, T)`
+    (``rules.drift_xy``, ``rules.drift_theta``, per √s; :math:`T` = ``rules.drift_cap_s``).
     """
     nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, ll = ekf_innovation(pose, z, R, mu, sigma)
     P = cloud.copy()
+    unseen_s = min(unseen_s, rules.drift_cap_s)
     P[0, 0] += rules.drift_xy ** 2 * unseen_s
     P[1, 1] += rules.drift_xy ** 2 * unseen_s
     P[2, 2] += rules.drift_theta ** 2 * unseen_s
@@ -267,6 +297,48 @@ def best_landmark(P, m, z, R, taken, cloud, t, rules):
 
 
 @njit(cache=True)
+def choose_landmarks(P, m, z, R, cloud, t, rules):
+    """The association of one instant's sightings ``z`` (n, 2) for particle ``m``: ``(slot, loglik)`` (n,), (n,),
+    the slot each goes to (-1: a new landmark) and its log-likelihood :math:`\\ell_{ik}` (-inf for a new one).
+
+    Every pair ``(i, k)`` with :math:`d^2_{ik} \\le d_0^2` is a candidate, scored by its log-likelihood
+    :math:`\\ell_{ik}` (:func:`association_loglik`); a sighting with no candidate is new (:math:`p_0` wins).
+    With mutual exclusion (``rules.exclusive``) the pairs are taken greedily, the most likely first, each
+    sighting and each landmark at most once: an approximation of the most likely joint association of
+    the instant, so that a landmark is not taken by the sighting of its neighbour just because that
+    sighting came first in the file. Without, each sighting takes its most likely landmark.
+    """
+    n, K = z.shape[0], P.n[m]
+    ll = np.full((n, K), -math.inf)
+    for i in range(n):
+        for k in range(K):
+            lik, d2 = association_loglik(P.poses[m], z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud,
+                                         t - P.last_t[m, k], rules)
+            if d2 <= rules.new_chi2:
+                ll[i, k] = lik
+    slot = np.full(n, -1, dtype=np.int64)
+    chosen = np.full(n, -math.inf)
+    if not rules.exclusive:
+        for i in range(n):
+            if K > 0 and ll[i].max() > -math.inf:
+                slot[i] = np.argmax(ll[i])
+                chosen[i] = ll[i, slot[i]]
+        return slot, chosen
+    for _ in range(min(n, K)):
+        best, bi, bk = -math.inf, -1, -1
+        for i in range(n):
+            for k in range(K):
+                if ll[i, k] > best:
+                    best, bi, bk = ll[i, k], i, k
+        if bi < 0:
+            break
+        slot[bi], chosen[bi] = bk, best
+        ll[bi, :] = -math.inf  # the sighting is used, and so is the landmark
+        ll[:, bk] = -math.inf
+    return slot, chosen
+
+
+@njit(cache=True)
 def add_landmark(P, m, z, R, ident, t):
     """A new landmark in particle ``m`` from sighting ``z`` (lines 6–8 of table 13.1); its slot, or -1 if full."""
     k = P.n[m]
@@ -276,6 +348,7 @@ def add_landmark(P, m, z, R, ident, t):
     P.ident[m, k] = ident
     P.seen[m, k] = 1
     P.missed[m, k] = 0
+    P.evidence[m, k] = 1.0
     P.last_t[m, k] = t
     P.n[m] = k + 1
     return k
@@ -291,6 +364,8 @@ def remove_landmark(P, m, k):
         P.ident[m, k] = P.ident[m, last]
         P.seen[m, k] = P.seen[m, last]
         P.missed[m, k] = P.missed[m, last]
+        P.evidence[m, k] = P.evidence[m, last]
+        P.log_odds[m, k] = P.log_odds[m, last]
         P.last_t[m, k] = P.last_t[m, last]
     P.ident[m, last] = -1
     P.n[m] = last
@@ -304,16 +379,29 @@ def in_view(pose, mu, rules):
 
 
 @njit(cache=True)
+def existence_log_odds(log_odds, seen, rules):
+    """The existence log odds of a landmark after one instant in view: seen (``True``) or missed.
+
+    :math:`L \\mathrel{+}= \\log\\frac{p_D}{p_F}` for a sighting, :math:`\\log\\frac{1-p_D}{1-p_F}` (< 0) for a miss,
+    from :math:`L = 0` (even odds) before the first sighting; clamped above at ``n_confirm`` sightings' worth,
+    so that a landmark seen for a long time is still removed after a few dozen misses once it has gone (a
+    copy that a newer landmark has replaced): :math:`p_D` = 0.3, :math:`p_F` = 0.05 give +1.79 and -0.31.
+    """
+    if seen:
+        return min(log_odds + rules.log_odds_seen, rules.n_confirm * rules.log_odds_seen)
+    return log_odds + rules.log_odds_missed
+
+
+@njit(cache=True)
 def negative_evidence(P, m, taken, rules):
-    """Count a miss for every landmark of particle ``m`` in view but not taken at this instant; remove the
-    provisional ones (seen < ``n_confirm``) whose misses exceed their sightings by ``max_misses``."""
+    """Count a miss for every landmark of particle ``m`` in view but not taken at this instant; remove those
+    whose existence log odds (:func:`existence_log_odds`) fall below zero: more likely clutter than real."""
     k = 0
     while k < P.n[m]:
         if not taken[k] and in_view(P.poses[m], P.mu[m, k], rules):
             P.missed[m, k] += 1
-            provisional = P.seen[m, k] < rules.n_confirm
-            if (provisional and P.missed[m, k] - P.seen[m, k] >= rules.max_misses) or (
-                    not provisional and P.missed[m, k] >= rules.miss_ratio * P.seen[m, k] + rules.max_misses):
+            P.log_odds[m, k] = existence_log_odds(P.log_odds[m, k], False, rules)
+            if P.log_odds[m, k] < 0.0:
                 taken[k] = taken[P.n[m] - 1]  # the last landmark moves into slot k
                 remove_landmark(P, m, k)
                 continue
@@ -322,38 +410,42 @@ def negative_evidence(P, m, taken, rules):
 
 @njit(cache=True)
 def associate_particle(P, m, instant, rules, next_ident, out, cloud):
-    """The sightings of one instant, ``instant = (z (n, 2), R (n, 2, 2), t)``, for particle ``m``: association,
-    update, weight, negative evidence. ``out`` (n,) receives the identity of the landmark each sighting went to
-    (-1: none); ``next_ident`` (1,) is the shared counter of new identities."""
+    """The sightings of one instant, ``instant = (z (n, 2), R (n, 2, 2), t)``, for particle ``m``: association
+    (:func:`choose_landmarks`), update, weight, negative evidence. ``out`` (n,) receives the identity of the
+    landmark each sighting went to (-1: none); ``next_ident`` (1,) is the shared counter of new identities.
+
+    An assigned sighting updates its landmark's EKF and multiplies the weight by its likelihood (tempered
+    by :math:`\\beta = \\min(1, \\Delta t/\\tau)`); a provisional landmark's, or a new one's, by :math:`p_0`.
+    """
     z, R, t = instant
     taken = np.zeros(P.mu.shape[1], dtype=np.bool_)
+    slot, lls = choose_landmarks(P, m, z, R, cloud, t, rules)
     for i in range(z.shape[0]):
-        k, ll, d2 = best_landmark(P, m, z[i], R[i], taken, cloud, t, rules)
-        if k < 0 or d2 > rules.new_chi2:  # p0 wins: a landmark never seen before
-            log_p0 = new_landmark_loglik(R[i], rules.new_chi2)
-            k = add_landmark(P, m, z[i], R[i], next_ident[0], t)
-            P.logw[m] += log_p0
-            if k < 0:
-                out[i] = -1
-                continue
-            out[i] = next_ident[0]
+        k = slot[i]
+        if k < 0:
+            continue
+        beta = 1.0 if rules.tau <= 0.0 else min(1.0, (t - P.last_t[m, k]) / rules.tau)
+        ekf_update(P.poses[m], z[i], R[i], P.mu[m, k], P.sigma[m, k], math.inf)
+        ll = lls[i]  # the likelihood the association was decided by: weight and decision agree
+        if P.evidence[m, k] < rules.n_confirm and rules.provisional_as_new:
+            ll = new_landmark_loglik(R[i], rules.new_chi2)  # a provisional landmark explains nothing yet
+        P.logw[m] += beta * ll
+        P.seen[m, k] += 1
+        P.evidence[m, k] += beta
+        P.log_odds[m, k] = existence_log_odds(P.log_odds[m, k], True, rules)
+        P.last_t[m, k] = t
+        out[i] = P.ident[m, k]
+        taken[k] = True
+    for i in range(z.shape[0]):
+        if slot[i] >= 0 or not rules.min_range <= z[i, 0] <= rules.max_range:
+            continue  # assigned, or too far to be checked by negative evidence: not mapped
+        P.logw[m] += new_landmark_loglik(R[i], rules.new_chi2)  # p0 wins: a landmark never seen before
+        k = add_landmark(P, m, z[i], R[i], next_ident[0], t)
+        out[i] = -1 if k < 0 else next_ident[0]
+        if k >= 0:
+            P.log_odds[m, k] = existence_log_odds(0.0, True, rules)
             next_ident[0] += 1
-        else:
-            beta = 1.0 if rules.tau <= 0.0 else min(1.0, (t - P.last_t[m, k]) / rules.tau)
-            ll = ekf_update(P.poses[m], z[i], R[i], P.mu[m, k], P.sigma[m, k], math.inf)[1]
-            if P.seen[m, k] < rules.n_confirm and rules.provisional_as_new:
-                ll = new_landmark_loglik(R[i], rules.new_chi2)  # a provisional landmark explains nothing yet
-            P.logw[m] += beta * ll
-            P.seen[m, k] += 1
-            P.last_t[m, k] = t
-            out[i] = P.ident[m, k]
-        if rules.exclusive:
             taken[k] = True
-    if not rules.exclusive:
-        for i in range(z.shape[0]):  # the landmarks that were assigned a sighting
-            for k in range(P.n[m]):
-                if P.ident[m, k] == out[i]:
-                    taken[k] = True
     negative_evidence(P, m, taken, rules)
 
 
@@ -383,6 +475,8 @@ def select_maps(P, idx):
     P.ident[:] = P.ident[idx]
     P.seen[:] = P.seen[idx]
     P.missed[:] = P.missed[idx]
+    P.evidence[:] = P.evidence[idx]
+    P.log_odds[:] = P.log_odds[idx]
     P.last_t[:] = P.last_t[idx]
     P.logw[:] = 0.0
 
@@ -467,8 +561,8 @@ class AssociationResult:
 
     t, pose_mean, pose_best (N,), (N, 3): as FastSLAM's result. ``landmarks`` (L, 2), ``landmarks_cov``
     (L, 2, 2), ``landmark_ident`` (L,), ``landmark_seen`` (L,): the map of the highest-weight particle
-    at the end, its confirmed landmarks only (seen ``n_confirm`` times or more). ``history`` (n,): the
-    identity that particle (through its ancestors) gave each sighting of the stream (-1: none).
+    at the end, its confirmed landmarks only (evidence :math:`\\sum\\beta` of ``n_confirm`` sightings or
+    more). ``history`` (n,): the identity that particle (through its ancestors) gave each sighting of the stream (-1: none).
     ``n_provisional``: its landmarks still provisional at the end. ``particles``: the final set.
     """
 
@@ -525,7 +619,7 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
     seconds = time.perf_counter() - t0
     best = int(np.argmax(w))
     k = np.arange(P.n[best])
-    keep = k[P.seen[best, k] >= params.n_confirm]
+    keep = k[P.evidence[best, k] >= params.n_confirm]
     return AssociationResult(
         t=np.asarray(stream.t, dtype=float), pose_mean=pose_mean, pose_best=pose_best,
         landmarks=P.mu[best, keep].copy(), landmarks_cov=P.sigma[best, keep].copy(),
@@ -536,7 +630,6 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
 
 
 __all__ = ["AssociationParams", "AssociationResult", "MapParticles", "Rules", "initial_particles",
-           "new_landmark_loglik", "best_landmark", "add_landmark", "remove_landmark", "in_view",
-           "negative_evidence", "associate_particle", "select_maps", "AssociationRecord", "run_unknown_segments",
-           "best_history",
-           "run_unknown"]
+           "new_landmark_loglik", "best_landmark", "choose_landmarks", "add_landmark", "remove_landmark",
+           "in_view", "existence_log_odds", "negative_evidence", "associate_particle", "select_maps",
+           "AssociationRecord", "run_unknown_segments", "best_history", "run_unknown"]
