@@ -292,7 +292,9 @@ def expected_measurement(pose, m):
     q = dx * dx + dy * dy
     r = math.sqrt(q)
     phi = wrap_one(math.atan2(dy, dx) - pose[2])
-    return r, phi, dx / r, dy / r, -dy / q, dx / q
+    inv_r = 1.0 / r  # one division, then products
+    inv_q = inv_r * inv_r
+    return r, phi, dx * inv_r, dy * inv_r, -dy * inv_q, dx * inv_q
 
 
 @njit(cache=True, inline="always")
@@ -349,7 +351,8 @@ def ekf_update(pose, z, R, mu, sigma, gate_chi2):
     if d2 > gate_chi2:
         return d2, loglik
     det_q = q00 * q11 - q01 * q01
-    i00, i01, i11 = q11 / det_q, -q01 / det_q, q00 / det_q  # Q⁻¹
+    inv_det = 1.0 / det_q
+    i00, i01, i11 = q11 * inv_det, -q01 * inv_det, q00 * inv_det  # Q⁻¹
     a, b, d = sigma[0, 0], sigma[0, 1], sigma[1, 1]
     s00, s01 = a * h00 + b * h01, a * h10 + b * h11  # Σ Hᵀ
     s10, s11 = b * h00 + d * h01, b * h10 + d * h11

@@ -221,9 +221,27 @@ def standard_normals(rng, out):
 # ---------------------------------------------------------------- lines 5–17 for one particle, behind the gate
 
 
+class Sighting(NamedTuple):
+    """One sighting of the instant as lines 5–17 take it (:func:`sighting_of`): z (2,) ``(r, φ)``;
+    R (2, 2); j the landmark; beta the exponent of its likelihood; loglik (M,) FastSLAM 2.0's
+    log-likelihood per particle (NaN: FastSLAM 1.0's)."""
+
+    z: np.ndarray
+    R: np.ndarray
+    j: int
+    beta: float
+    loglik: np.ndarray
+
+
 @njit(cache=True, inline="always")
-def update_particle(P, m, S, i, gate_chi2, update_map):
-    """Lines 5–17 for particle ``m`` and sighting ``i`` of the instant (:class:`Particles`, :class:`Sightings`).
+def sighting_of(S, i):
+    """Sighting ``i`` of the instant's :class:`Sightings`, taken out once for all the particles."""
+    return Sighting(S.z[i], S.R[i], S.j[i], S.beta[i], S.loglik[:, i])
+
+
+@njit(cache=True, inline="always")
+def update_particle(P, m, s, gate_chi2, update_map):
+    """Lines 5–17 for particle ``m`` (:class:`Particles`) and one sighting ``s`` (:class:`Sighting`).
 
     A first sighting initialises the landmark, weight unchanged. Otherwise the
     particle's log weight grows by :math:`\\beta \\log\\mathcal N(\\nu; 0, Q)` and its
@@ -234,40 +252,45 @@ def update_particle(P, m, S, i, gate_chi2, update_map):
     re-initialised from the new sighting at no cost in weight (one of its two
     sightings is wrong). With ``update_map`` False (localisation) only weights change.
     """
-    j = S.j[i]
-    pose, z, R = P.poses[m], S.z[i], S.R[i]
-    mu, sigma = P.mu[m, j], P.sigma[m, j]
+    j = s.j
     if not P.seen[m, j]:
-        ekf_initialise(pose, z, R, mu, sigma)
-        P.seen[m, j] = True
-        P.count[m, j] = 1
+        initialise_landmark(P, m, s)
         return
     if update_map:
-        d2, loglik = ekf_update(pose, z, R, mu, sigma, gate_chi2)
+        d2, loglik = ekf_update(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j], gate_chi2)
     else:
-        d2, loglik = ekf_innovation(pose, z, R, mu, sigma)[9:]
-    if not math.isnan(S.loglik[m, i]):
-        loglik = S.loglik[m, i]
+        d2, loglik = ekf_innovation(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j])[9:]
+    if not math.isnan(s.loglik[m]):
+        loglik = s.loglik[m]
     outlier = d2 > gate_chi2  # the landmark was left alone
     if outlier and update_map and P.count[m, j] == 1:
-        ekf_initialise(pose, z, R, mu, sigma)  # re-initialised, at no cost in weight
+        initialise_landmark(P, m, s)  # re-initialised, at no cost in weight
         return
-    P.logw[m] += S.beta[i] * loglik
+    P.logw[m] += s.beta * loglik
     if not outlier:
         P.count[m, j] += 1
 
 
+@njit(cache=True)
+def initialise_landmark(P, m, s):
+    """Lines 6–8: landmark ``s.j`` of particle ``m`` from the inverse model (:func:`fastslam_edu.core.ekf.ekf_initialise`),
+    seen once. (Not inlined: it runs once per landmark and particle, and the update's loop is faster without it.)"""
+    ekf_initialise(P.poses[m], s.z, s.R, P.mu[m, s.j], P.sigma[m, s.j])
+    P.seen[m, s.j] = True
+    P.count[m, s.j] = 1
+
+
 @njit(cache=True, inline="always")
-def explains(P, S, i, gate_chi2):
-    """True unless *every* particle that has seen the landmark of sighting ``i`` puts it beyond the gate.
+def explains(P, s, gate_chi2):
+    """True unless *every* particle that has seen the landmark of sighting ``s`` puts it beyond the gate.
 
     Such a sighting fits no hypothesis — a misread barcode, a range off by
     metres — and is set aside (unless it escapes the gate). True when no
     particle has seen the landmark.
     """
-    j = S.j[i]
+    j = s.j
     for m in range(P.poses.shape[0]):
-        if P.seen[m, j] and ekf_innovation(P.poses[m], S.z[i], S.R[i], P.mu[m, j], P.sigma[m, j])[9] <= gate_chi2:
+        if P.seen[m, j] and ekf_innovation(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j])[9] <= gate_chi2:
             return True
     return not P.seen[:, j].any()
 
@@ -284,15 +307,15 @@ def update_particles(P, S, gate_chi2, update_map, explained):
     ``gate_chi2``: ``inf`` for no gate.
     """
     for i in range(S.j.shape[0]):
-        explained[i] = explains(P, S, i, gate_chi2)
+        s = sighting_of(S, i)
+        explained[i] = explains(P, s, gate_chi2)
         chi2 = math.inf if S.escape[i] else gate_chi2
         apply = explained[i] or S.escape[i]
-        j = S.j[i]
         for m in range(P.poses.shape[0]):
-            if apply or not P.seen[m, j]:
-                update_particle(P, m, S, i, chi2, update_map)
-            elif update_map and P.count[m, j] == 1:  # rejected, but one of two sightings is wrong:
-                ekf_initialise(P.poses[m], S.z[i], S.R[i], P.mu[m, j], P.sigma[m, j])  # start again
+            if apply or not P.seen[m, s.j]:
+                update_particle(P, m, s, chi2, update_map)
+            elif update_map and P.count[m, s.j] == 1:  # rejected, but one of two sightings is wrong:
+                initialise_landmark(P, m, s)  # start again
 
 
 # ---------------------------------------------------------------- step 4: weights and the combined pose
@@ -535,12 +558,14 @@ def run_segments(P, L, s, segments, rng, out):
     """Steps 1–4 over ``segments`` (S, 2): runs of steps ``start..end``, each ending at a measurement step
     or a cut; for each, line 4 for every particle (:func:`sample_segment`), then :func:`measure_instant`."""
     m = P.poses.shape[0]
+    longest = np.max(segments[:, 1] - segments[:, 0]) + 1 if segments.shape[0] else 0
+    normals = np.empty((longest, s.n_draws, m))  # one buffer for every segment's normals
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
         measured = L.offsets[last + 1] > L.offsets[last]
         n_record = last - first + (0 if measured else 1)  # a measurement step's estimate comes after the update
         x_start = P.poses.copy() if s.proposal == 1 else P.poses[:0].copy()
-        eps = np.empty((last - first + 1, s.n_draws, m))
+        eps = normals[:last - first + 1]
         standard_normals(rng, eps)
         sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
                        out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
