@@ -9,14 +9,20 @@ their maps), at full rate with the default ``FastSLAMParams``:
   the same three figures, the landmarks' standard deviation from the Laplace approximation (how well
   the data fix them in the absolute frame), iterations, seconds; and started from dead reckoning, to
   show where that start is enough (least squares finds the optimum nearest its start);
-* the smoother with the odometry calibration :math:`(k_v, k_\\omega, \\tau)` estimated with the path and map
-  (``SolverSettings(calibrate_odometry=True)``, from the same start): the three figures and the estimate.
+* the book's best estimate (``BEST_ESTIMATE``: every sighting counted in full), started from each of the
+  filter's N runs: the median of the figures and their spread over the starts;
+* variants, from the filter's seed-0 run, each estimating parameters of the model with the path and map
+  (``SolverSettings.calibrate``): the odometry's scale and lag :math:`(k_v, k_\\omega, \\tau)` under the default
+  (tempered) settings and under ``BEST_ESTIMATE``, and a bearing bias or a travel offset under ``BEST_ESTIMATE``.
+
+For every solution also the rotation [°] of the rigid motion that best maps its landmarks onto the surveyed ones
+(:func:`fastslam_edu.evaluation.metrics.align_se2`): what is left of the absolute error once the map's shape is right.
 
 The smoother uses every sighting at once; the filter must decide online and keeps M = 100 samples of
 the path. The gap between the two is what FastSLAM 1.0 loses, not what the data lack.
 
 Usage: python benchmarks/smoother_mrclam.py [--seeds 5] [--jobs 2] [--out FILE]
-(data from $FASTSLAM_EDU_DATA, default ./data; about 10 min on 2 cores, most of it the starts from dead reckoning)
+(data from $FASTSLAM_EDU_DATA, default ./data; about 10 min on one core, most of it the starts from dead reckoning)
 """
 
 from __future__ import annotations
@@ -35,60 +41,64 @@ from fastslam_accuracy import EXTRA, NO_GROUNDTRUTH, ROBOTS, TARGETS, _load, _ru
 from machine import machine_info  # noqa: E402
 
 from fastslam_edu.app.experiment import summarize_smoother  # noqa: E402
+from fastslam_edu.evaluation.metrics import align_se2  # noqa: E402
 from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam  # noqa: E402
-from fastslam_edu.landmark.smoother import SolverSettings, smooth  # noqa: E402
+from fastslam_edu.landmark.smoother import BEST_ESTIMATE, ODOMETRY_CALIBRATION, SolverSettings, smooth  # noqa: E402
 
 KEYS = list(TARGETS)
+FIGURES = KEYS + ["path_rmse_aligned_m", "rotation_deg", "landmark_std_mean_m", "iterations", "smoother_seconds",
+                  "measurements_rejected", "keyframes"]
+#: The variants, from the filter's seed-0 run: name → settings.
+VARIANTS = {
+    "smoother_calibrated": SolverSettings(calibrate=ODOMETRY_CALIBRATION),
+    "best_calibrated": BEST_ESTIMATE.replace(calibrate=ODOMETRY_CALIBRATION),
+    "best_bearing_bias": BEST_ESTIMATE.replace(calibrate=("bearing_bias",)),
+    "best_travel_offset": BEST_ESTIMATE.replace(calibrate=("travel_offset",)),
+}
+
+
+def _figures(result, data, log) -> dict:
+    """The figures of one smoother solution (``FIGURES``), and its calibration when estimated."""
+    s = summarize_smoother(result, data, log)
+    o = result.observed
+    s["rotation_deg"] = float(np.degrees(align_se2(result.landmarks[o], data.landmark_positions[o])[2]))
+    out = {k: s.get(k) for k in FIGURES}
+    if result.calibration is not None:
+        out["calibration"] = {k: round(v, 5) for k, v in result.calibration.items()}
+        out["calibration_std"] = {k: round(v, 5) for k, v in result.calibration_std.items()}
+    return out
 
 
 def _smoother(job) -> dict:
-    dataset, robot = job
+    dataset, robot, seeds = job
     data, log, stream = _load(dataset, robot)
     params = FastSLAMParams()
+    filters = [run_fastslam(stream, params, np.random.default_rng(seed)) for seed in range(seeds)]
     out = {"dataset": dataset, "robot": robot}
-    filt = run_fastslam(stream, params, np.random.default_rng(0))
-    for start in ("filter_seed0", "dead_reckoning", "calibrated"):
-        solver = SolverSettings(calibrate_odometry=start == "calibrated")
-        result = smooth(stream, params, initial=None if start == "dead_reckoning" else filt, solver=solver)
-        s = summarize_smoother(result, data, log)
-        out[start] = {k: s[k] for k in KEYS + ["landmark_std_mean_m", "iterations", "smoother_seconds",
-                                               "measurements_rejected", "keyframes"]}
-        if result.odometry_calibration is not None:
-            out[start]["odometry_calibration"] = [round(float(x), 4) for x in result.odometry_calibration]
-            out[start]["odometry_calibration_std"] = [round(float(x), 4) for x in result.odometry_calibration_std]
+    out["smoother"] = _figures(smooth(stream, params, initial=filters[0]), data, log)
+    out["smoother_from_dead_reckoning"] = _figures(smooth(stream, params), data, log)
+    out["best_estimate_runs"] = [_figures(smooth(stream, params, initial=f, solver=BEST_ESTIMATE), data, log)
+                                 for f in filters]
+    for name, solver in VARIANTS.items():
+        out[name] = _figures(smooth(stream, params, initial=filters[0], solver=solver), data, log)
     return out
+
+
+def _median_runs(runs: list[dict]) -> dict:
+    """Median over the starts of every figure, and the spread (max − min) of the three target figures."""
+    row = {k: None if runs[0][k] is None else statistics.median(r[k] for r in runs) for k in FIGURES}
+    row["spread_m"] = {k: None if runs[0][k] is None else max(r[k] for r in runs) - min(r[k] for r in runs) for k in KEYS}
+    return row
 
 
 def _fmt(value, digits=2):
     return "n/a" if value is None else f"{value:.{digits}f}"
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "smoother_mrclam.json")
-    args = ap.parse_args(argv)
-    robots = ROBOTS + EXTRA + NO_GROUNDTRUTH
-    with ProcessPoolExecutor(args.jobs) as pool:
-        filters = list(pool.map(_run, [(d, r, s, FastSLAMParams()) for d, r in robots for s in range(args.seeds)]))
-        smoothers = list(pool.map(_smoother, robots))
-    table = []
-    for (d, r), sm in zip(robots, smoothers):
-        runs = [x for x in filters if (x["dataset"], x["robot"]) == (d, r)]
-        row = {"robot": f"D{d}R{r}", "named_by_targets": (d, r) in ROBOTS}
-        for k in KEYS:
-            values = [x[k] for x in runs]
-            row[f"filter_{k}_median"] = None if None in values else statistics.median(values)
-        row["smoother"] = sm["filter_seed0"]
-        row["smoother_from_dead_reckoning"] = sm["dead_reckoning"]
-        row["smoother_calibrated"] = sm["calibrated"]
-        table.append(row)
-
+def _print(table, args) -> None:
     print(f"Full rate, default FastSLAMParams. Filter: M = 100, median of seeds 0-{args.seeds - 1}. "
           "Smoother: least squares over the whole log, from the filter's seed-0 run [m]")
-    head = f"{'robot':<6} {'path RMSE':>13} {'landmarks':>13} {'aligned':>13} {'lm std':>7} {'iter':>5} {'s':>6}"
-    print(head)
+    print(f"{'robot':<6} {'path RMSE':>13} {'landmarks':>13} {'aligned':>13} {'lm std':>7} {'iter':>5} {'s':>6}")
     print(f"{'':<6} {'filter  smth':>13} {'filter  smth':>13} {'filter  smth':>13}")
     for row in table:
         sm = row["smoother"]
@@ -101,17 +111,49 @@ def main(argv=None) -> int:
         diff = max(abs(dr[k] - sm[k]) for k in KEYS if sm[k] is not None)
         print(f"  {row['robot']}: {diff:.3f} m, {dr['measurements_rejected']} against {sm['measurements_rejected']} "
               f"rejected, {dr['smoother_seconds']:.1f} s")
-    print("with the odometry calibration (k_v, k_w, tau) estimated (SolverSettings(calibrate_odometry=True)):")
-    print(f"{'robot':<6} {'path':>6} {'lm':>6} {'aligned':>7} {'lm std':>7} {'rej':>5} {'k_v':>6} {'k_w':>6} {'tau s':>6}")
+    spread = max(v for r in table for v in r["best_estimate"]["spread_m"].values() if v is not None)
+    print(f"path RMSE / landmark error / aligned landmark error [m], rotation of the map [deg]; best estimate: median of "
+          f"{args.seeds} starts (largest spread {spread:.3f} m)")
+    names = ["smoother", "best_estimate", *VARIANTS]
+    print(f"{'robot':<6} " + " ".join(f"{n:>24}" for n in names))
     for row in table:
-        c = row["smoother_calibrated"]
-        kv, kw, tau = c["odometry_calibration"]
-        print(f"{row['robot']:<6} {_fmt(c['path_rmse_m']):>6} {_fmt(c['landmark_error_mean_m']):>6} "
-              f"{_fmt(c['landmark_error_aligned_mean_m']):>7} {_fmt(c['landmark_std_mean_m']):>7} "
-              f"{c['measurements_rejected']:>5} {kv:>6.3f} {kw:>6.3f} {tau:>6.3f}")
+        cells = [f"{_fmt(row[n]['path_rmse_m'])}/{_fmt(row[n]['landmark_error_mean_m'])}/"
+                 f"{_fmt(row[n]['landmark_error_aligned_mean_m'])} {row[n]['rotation_deg']:+5.1f}" for n in names]
+        print(f"{row['robot']:<6} " + " ".join(f"{c:>24}" for c in cells))
+    print("estimated calibrations (BEST_ESTIMATE variants): k_v k_w tau [s] | bearing bias [deg] | travel offset [deg]")
+    for row in table:
+        c, b, d = (row[n]["calibration"] for n in ("best_calibrated", "best_bearing_bias", "best_travel_offset"))
+        print(f"{row['robot']:<6} {c['k_v']:.3f} {c['k_omega']:.3f} {c['tau']:.3f} | "
+              f"{np.degrees(b['bearing_bias']):+.2f} | {np.degrees(d['travel_offset']):+.2f}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "smoother_mrclam.json")
+    args = ap.parse_args(argv)
+    if args.seeds < 1 or args.jobs < 1:
+        ap.error("--seeds and --jobs must be >= 1")
+    robots = ROBOTS + EXTRA + NO_GROUNDTRUTH
+    with ProcessPoolExecutor(args.jobs) as pool:
+        filters = list(pool.map(_run, [(d, r, s, FastSLAMParams()) for d, r in robots for s in range(args.seeds)]))
+        smoothers = list(pool.map(_smoother, [(d, r, args.seeds) for d, r in robots]))
+    table = []
+    for (d, r), sm in zip(robots, smoothers):
+        runs = [x for x in filters if (x["dataset"], x["robot"]) == (d, r)]
+        row = {"robot": f"D{d}R{r}", "named_by_targets": (d, r) in ROBOTS}
+        for k in KEYS:
+            values = [x[k] for x in runs]
+            row[f"filter_{k}_median"] = None if None in values else statistics.median(values)
+        row["best_estimate"] = _median_runs(sm.pop("best_estimate_runs"))
+        row.update({k: v for k, v in sm.items() if k not in ("dataset", "robot")})
+        table.append(row)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"machine": machine_info(), "params": FastSLAMParams().to_dict(),
-                                    "seeds": args.seeds, "table": table, "filter_runs": filters}, indent=2))
+                                    "best_estimate": BEST_ESTIMATE.to_dict(), "seeds": args.seeds, "table": table,
+                                    "filter_runs": filters}, indent=2))
+    _print(table, args)
     print(f"wrote {args.out}")
     return 0
 

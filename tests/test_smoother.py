@@ -11,11 +11,16 @@ import pytest
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.app.experiment import score_estimate, summarize_smoother
 from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
-from fastslam_edu.evaluation.metrics import landmark_errors_aligned
+from fastslam_edu.evaluation.metrics import align_se2, landmark_errors_aligned
 from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.core.se2 import relative
+from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.landmark.smoother import (
+    BEST_ESTIMATE,
+    CALIBRATION_NAMES,
+    ODOMETRY_CALIBRATION,
     PRIOR_STD,
+    OdometryModel,
     SolverSettings,
     block_tridiagonal_inverse_diagonal,
     dead_reckoning,
@@ -394,6 +399,11 @@ def test_lagged_commands_shift_the_integral_of_the_commands():
     np.testing.assert_array_equal(lagged_commands(stream, 0.0), u)
 
 
+def _calibration(result, names=ODOMETRY_CALIBRATION):
+    """The estimated calibration and its σ as arrays, in the order of ``names``."""
+    return (np.array([result.calibration[n] for n in names]), np.array([result.calibration_std[n] for n in names]))
+
+
 def _miscalibrated(seed, scale, lag, duration=90.0):
     """A simulation whose recorded commands are ``1 / scale`` times the executed ones and ``lag`` seconds early: the robot
     executes ``scale`` times what is logged, ``lag`` seconds after it is logged."""
@@ -409,14 +419,14 @@ def _miscalibrated(seed, scale, lag, duration=90.0):
 @pytest.mark.parametrize("seed", [22, 26])
 def test_odometry_scale_and_lag_are_estimated_with_the_path(seed):
     """Known truth: the robot moves at 0.92 × the logged speed, turns at 0.90 × the logged rate, 0.2 s late.
-    Estimated jointly (``calibrate_odometry``), the calibration comes back within a few of its own σ and
+    Estimated jointly (``calibrate=ODOMETRY_CALIBRATION``), the calibration comes back within a few of its own σ and
     the path error drops several times; without it, the scale error bends the whole path."""
     kv, kw, tau = 0.92, 0.90, 0.2
     data, log, stream = _miscalibrated(seed, (kv, kw), tau)
     plain = smooth(stream, _params())
-    fitted = smooth(stream, _params(), solver=SolverSettings(calibrate_odometry=True))
-    assert plain.odometry_calibration is None
-    c, sd = fitted.odometry_calibration, fitted.odometry_calibration_std
+    fitted = smooth(stream, _params(), solver=SolverSettings(calibrate=ODOMETRY_CALIBRATION))
+    assert plain.calibration is None
+    c, sd = _calibration(fitted)
     assert np.all(np.abs(c - [kv, kw, tau]) < [0.02, 0.02, 0.03]), c
     assert np.all(sd > 0) and np.all(np.abs(c - [kv, kw, tau]) < 4 * sd)
     e_plain, e_fitted = path_rmse(plain.t, plain.poses, log), path_rmse(fitted.t, fitted.poses, log)
@@ -430,15 +440,16 @@ def test_a_calibrated_log_is_left_calibrated():
     """No scale error, no lag: the estimate stays at (1, 1, 0) within its σ, and the solution barely moves."""
     data, log, stream = simulate(24, duration=90.0)
     plain = smooth(stream, _params())
-    fitted = smooth(stream, _params(), solver=SolverSettings(calibrate_odometry=True))
-    c, sd = fitted.odometry_calibration, fitted.odometry_calibration_std
+    fitted = smooth(stream, _params(), solver=SolverSettings(calibrate=ODOMETRY_CALIBRATION))
+    c, sd = _calibration(fitted)
     assert np.all(np.abs(c - [1.0, 1.0, 0.0]) < 4 * sd) and np.all(sd < [0.03, 0.03, 0.05])
     assert abs(path_rmse(fitted.t, fitted.poses, log) - path_rmse(plain.t, plain.poses, log)) < 0.05
 
 
-def test_calibration_covariance_is_the_laplace_block(monkeypatch):
+@pytest.mark.parametrize("calibrate", [ODOMETRY_CALIBRATION, ("bearing_bias",), ("k_omega", "travel_offset", "bearing_bias")])
+def test_calibration_covariance_is_the_laplace_block(monkeypatch, calibrate):
     """With the calibration estimated, the landmarks' covariances and the calibration's σ are still the blocks of
-    (JᵀJ)⁻¹ (the calibration is three more variables after the landmarks)."""
+    (JᵀJ)⁻¹ (the calibration is more variables after the landmarks)."""
     import fastslam_edu.landmark.smoother as smoother
 
     _, _, stream = _miscalibrated(25, (1.05, 1.1), 0.1, duration=30.0)
@@ -450,10 +461,99 @@ def test_calibration_covariance_is_the_laplace_block(monkeypatch):
         return laplace(problem, v, active, with_poses)
 
     monkeypatch.setattr(smoother, "_laplace", spy)
-    result = smooth(stream, _params(), pose_std=True, solver=SolverSettings(calibrate_odometry=True))
-    inverse, p = seen["inverse"], 3 * seen["n_poses"]
+    result = smooth(stream, _params(), pose_std=True, solver=SolverSettings(calibrate=calibrate))
+    inverse, p, q = seen["inverse"], 3 * seen["n_poses"], len(calibrate)
+    assert list(result.calibration) == [n for n in CALIBRATION_NAMES if n in calibrate]
     np.testing.assert_allclose(result.pose_std.ravel(), np.sqrt(np.diag(inverse)[:p]), rtol=1e-7)
-    np.testing.assert_allclose(result.odometry_calibration_std, np.sqrt(np.diag(inverse)[-3:]), rtol=1e-7)
+    np.testing.assert_allclose(_calibration(result, list(result.calibration))[1], np.sqrt(np.diag(inverse)[-q:]), rtol=1e-7)
     K = result.observed.sum()
     landmarks = inverse[p:p + 2 * K, p:p + 2 * K].reshape(K, 2, K, 2)[np.arange(K), :, np.arange(K), :]
     np.testing.assert_allclose(result.landmarks_cov[result.observed], landmarks, rtol=1e-7)
+
+
+def test_calibration_jacobian_matches_finite_differences():
+    """∂Δ/∂c of the speed and turn scales and of the travel offset δ (exact: Δ_xy turned by δ) against central
+    differences of the relative motions. (Not τ's: piecewise-constant commands make Δ piecewise linear in τ, and
+    the model takes a 10 ms secant on purpose.)"""
+    _, _, stream = _miscalibrated(27, (0.95, 0.9), 0.15, duration=20.0)
+    keys = keyframe_steps(stream)
+    model = OdometryModel(stream, keys)
+    c = np.array([0.97, 0.93, 0.12, 0.02, 0.0])
+    J = model.jacobian(c, [0, 1, 3])
+    for j, (i, h) in enumerate(((0, 1e-5), (1, 1e-5), (3, 1e-6))):
+        d = np.zeros(5)
+        d[i] = h
+        numeric = (model.deltas(c + d) - model.deltas(c - d)) / (2 * h)
+        np.testing.assert_allclose(J[:, :, j], numeric, atol=1e-7)
+    turned = model.deltas(c)
+    plain = model.deltas(np.r_[c[:3], 0.0, 0.0])
+    np.testing.assert_allclose(np.hypot(turned[:, 0], turned[:, 1]), np.hypot(plain[:, 0], plain[:, 1]), atol=1e-12)
+    np.testing.assert_allclose(turned[:, 2], plain[:, 2])
+
+
+def _with_bearing_bias(stream: EventStream, bias: float) -> EventStream:
+    """The stream with every bearing read ``bias`` [rad] too far anticlockwise."""
+    z = np.array(stream.z, dtype=float)
+    z[:, 1] = wrap_angle(z[:, 1] + bias)
+    return dataclasses.replace(stream, z=z)
+
+
+@pytest.mark.parametrize("seed", [31, 32])
+def test_a_bearing_bias_is_estimated_with_the_path(seed):
+    """Known truth: every bearing 0.03 rad (1.7°) too far anticlockwise. Estimated jointly (``bearing_bias``), the
+    bias comes back within 3 of its own σ (about 0.002 rad), and the path is as good as from the unbiased log; left
+    unmodelled, it turns the solution by degrees."""
+    bias = 0.03
+    data, log, stream = simulate(seed, duration=90.0)
+    biased = _with_bearing_bias(stream, bias)
+    fitted = smooth(biased, _params(), solver=SolverSettings(calibrate=("bearing_bias",)))
+    b, sd = fitted.calibration["bearing_bias"], fitted.calibration_std["bearing_bias"]
+    assert 0 < sd < 0.005 and abs(b - bias) < 3 * sd, (b, sd)
+    clean = smooth(stream, _params())
+    e_clean, e_fitted = path_rmse(clean.t, clean.poses, log), path_rmse(fitted.t, fitted.poses, log)
+    assert abs(e_fitted - e_clean) < 0.01
+    plain = smooth(biased, _params())
+    assert path_rmse(plain.t, plain.poses, log) > 3 * e_clean
+
+
+def _map_rotation(result, data) -> float:
+    """The angle [rad] of the rigid motion that best maps the estimated landmarks onto the true ones."""
+    return align_se2(result.landmarks[result.observed], data.landmark_positions[result.observed])[2]
+
+
+def test_a_travel_offset_explains_a_bearing_bias_in_another_frame():
+    """The same biased log with the travel offset δ estimated instead: the odometry then drives along θ + δ with
+    δ ≈ the bias (within 3 σ), and the bearings fit unbiased — the same shape, turned by −δ about the first pose,
+    whose heading the prior pins. δ and b are identifiable because the odometry ties the heading to the direction
+    of travel; which of the two is the frame's error, the data cannot tell."""
+    bias = 0.03
+    data, log, stream = simulate(32, duration=90.0)
+    biased = _with_bearing_bias(stream, bias)
+    travel = smooth(biased, _params(), solver=SolverSettings(calibrate=("travel_offset",)))
+    d, sd = travel.calibration["travel_offset"], travel.calibration_std["travel_offset"]
+    assert 0 < sd < 0.005 and abs(d - bias) < 3 * sd, (d, sd)
+    clean = smooth(stream, _params())
+    turned = _map_rotation(travel, data) - _map_rotation(clean, data)
+    assert abs(turned + d) < 0.004, (turned, d)
+    assert np.nanmean(landmark_errors_aligned(travel.landmarks, data.landmark_positions, travel.observed)) < 0.05
+
+
+def test_best_estimate_counts_every_sighting_in_full():
+    """``BEST_ESTIMATE`` is the default model with β = 1 for every sighting: the same solution as the model
+    with ``measurement_correlation_s=None``, and not the tempered one."""
+    _, _, stream = simulate(28, duration=30.0)
+    tempered = _params(measurement_correlation_s=4.0)
+    best = smooth(stream, tempered, solver=BEST_ESTIMATE)
+    untempered = smooth(stream, _params())
+    default = smooth(stream, tempered)
+    np.testing.assert_allclose(best.poses, untempered.poses, atol=1e-9)
+    np.testing.assert_allclose(best.landmarks_cov, untempered.landmarks_cov, rtol=1e-6)
+    assert np.abs(default.poses - best.poses).max() > 1e-4
+    assert np.trace(default.landmarks_cov[default.observed], axis1=1, axis2=2).sum() > \
+        np.trace(best.landmarks_cov[best.observed], axis1=1, axis2=2).sum()
+
+
+@pytest.mark.parametrize("calibrate", [("k_v", "scale"), ("tau", "tau"), "bearing_bias"])
+def test_unknown_or_repeated_calibration_names_are_refused(calibrate):
+    with pytest.raises(ValueError, match="SolverSettings.calibrate"):
+        SolverSettings(calibrate=calibrate)

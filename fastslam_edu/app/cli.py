@@ -72,8 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--proposal", choices=PROPOSALS, default="motion",
                      help="motion: FastSLAM 1.0 (default); fastslam2: FastSLAM 2.0's proposal")
     run.add_argument("--smooth", action="store_true",
-                     help="also solve the whole log by least squares from the filter's result (fastslam_edu.landmark.smoother): "
-                          "the best estimate under the same model; its figures go under 'smoother'")
+                     help="also solve the whole log by least squares from the filter's result (fastslam_edu.landmark.smoother, "
+                          "BEST_ESTIMATE: the filter's model with every sighting counted in full): the book's best "
+                          "estimate; its figures go under 'smoother'")
     run.add_argument("--resampler", choices=("systematic", "stratified", "residual", "roulette", "multinomial"), default=None,
                      help=f"default {FastSLAMParams().resampler} (FastSLAM only)")
     run.add_argument("--no-audit", action="store_true", help="do not correct swapped landmark table entries")
@@ -309,9 +310,9 @@ def cmd_run(args) -> int:
     rows = [(k, summary.get(k)) for k in keys]
     if args.smooth:
         from fastslam_edu.app.experiment import summarize_smoother
-        from fastslam_edu.landmark.smoother import smooth
+        from fastslam_edu.landmark.smoother import BEST_ESTIMATE, smooth
 
-        summary["smoother"] = summarize_smoother(smooth(ctx["stream"], params, initial=result), ctx["dataset"], ctx["log"])
+        summary["smoother"] = summarize_smoother(smooth(ctx["stream"], params, initial=result, solver=BEST_ESTIMATE), ctx["dataset"], ctx["log"])
         rows += [(f"smoother.{k}", summary["smoother"].get(k)) for k in keys[:5] + ("smoother_seconds",)]
     _print_rows(rows)
     if args.json:

@@ -213,9 +213,11 @@ def improved_pose_into(x_hat, x_bar, P, mu, sigma, z, R, e):
 
 
 @njit(cache=True)
-def _improved_poses(x_hat, x_bar, P, mu, Sigma, z, R, eps, d2, loglik):
+def _improved_poses(x_hat, x_bar, P, mu, Sigma, z, R, eps):
+    d2, loglik = np.empty(x_hat.shape[0]), np.empty(x_hat.shape[0])
     for m in range(x_hat.shape[0]):
         d2[m], loglik[m] = improved_pose_into(x_hat[m], x_bar[m], P[m], mu[m], Sigma[m], z, R, eps[m])
+    return d2, loglik
 
 
 def improved_pose(x_hat, x_bar, P, mu, Sigma, z, R, eps):
@@ -249,9 +251,8 @@ def improved_pose(x_hat, x_bar, P, mu, Sigma, z, R, eps):
     """
     x, x_bar_new, P_new = (np.array(a, dtype=float) for a in (x_hat, x_bar, P))  # private copies, changed in place
     mu, Sigma, eps = (np.ascontiguousarray(a, dtype=float) for a in (mu, Sigma, eps))
-    d2, loglik = np.empty(len(x)), np.empty(len(x))
-    _improved_poses(x, x_bar_new, P_new, mu, Sigma, np.asarray(z, dtype=float), np.asarray(R, dtype=float), eps,
-                    d2, loglik)
+    d2, loglik = _improved_poses(x, x_bar_new, P_new, mu, Sigma, np.asarray(z, dtype=float),
+                                 np.asarray(R, dtype=float), eps)
     return x, x_bar_new, P_new, loglik, d2
 
 
