@@ -70,5 +70,8 @@ check-math:
 bench: data
 	$(BIN)/python benchmarks/fastslam_mrclam.py
 
+# also numba's compiled kernels (__pycache__/*.nbi, *.nbc): a kernel inlined into another file's kernel is not
+# recompiled when only its own file changes
 clean:
 	rm -rf _build .pytest_cache .hypothesis
+	find fastslam_edu -name '*.nbi' -delete -o -name '*.nbc' -delete
