@@ -42,7 +42,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import machine_info  # noqa: E402
+from machine import machine_info, machine_line  # noqa: E402
 
 from fastslam_edu.core.measurement import range_bearing  # noqa: E402
 from fastslam_edu.core.resampling import systematic  # noqa: E402
@@ -198,8 +198,7 @@ def main(argv=None) -> int:
         "exponents_minima": {name: exponent(rows, name, "seconds_min") for name in NAMES},
         "seconds_total": None,
     }
-    m = results["machine"]
-    print(f"machine: {m.get('cpu_model', '?')}, {m['cpu_count']} cores, numpy {m['numpy']}, python {m['python']}")
+    print(machine_line(results["machine"]))
     print(f"one measurement update in a map of K landmarks; FastSLAM with M = {M}; time = median (min) of repeats [ms]")
     print(f"{'K':>5} {'EKF-SLAM':>18} {'FastSLAM arrays':>18} {'arrays+resample':>18} {'tree+resample':>18} "
           f"{'EKF/arrays':>10} {'EKF Σ [MB]':>10}")

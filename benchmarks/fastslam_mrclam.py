@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import machine_info  # noqa: E402
+from machine import machine_info, machine_line  # noqa: E402
 
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.datasets.events import event_stream  # noqa: E402
@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     results["machine_slowdown_vs_reference_machine"] = slowdown
     results["reference_loop_seconds_scaled"] = reference_here
 
-    print(f"machine: {results['machine'].get('cpu_model', '?')}, {results['machine']['cpu_count']} cores, numpy {results['machine']['numpy']}")
+    print(machine_line(results["machine"]))
     print(f"{'case':<28} {'steps':>7} {'meas':>6} {'time [s]':>9} {'vs ref':>7} {'scaled':>7} "
           f"{'path RMSE':>10} {'lm err':>7} {'lm aligned':>10}")
     for name in ("a_writeup_1hz_M100", "b_full_M100", "b_full_M1000", "d_full_M100_fastslam2"):

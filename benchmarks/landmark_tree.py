@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import machine_info  # noqa: E402
+from machine import machine_info, machine_line  # noqa: E402
 
 from fastslam_edu.landmark.fastslam import ParticleSet  # noqa: E402
 from fastslam_edu.landmark.fastslam_tree import TreeParticleSet  # noqa: E402
@@ -250,8 +250,7 @@ def main(argv=None) -> int:
         results["targets"] = {"tree_growth_at_most_2x": results["tree_growth_1e3_to_1e5"] <= 2.0,
                               "speedup_at_1e5_at_least_20x": results["speedup_at_1e5"] >= 20.0}
 
-    m = results["machine"]
-    print(f"machine: {m.get('cpu_model', '?')}, {m['cpu_count']} cores, numpy {m['numpy']}, python {m['python']}")
+    print(machine_line(results["machine"]))
     print(f"one step = resample M={M} particles + update 2 landmarks each; time = median (min) of repeats")
     print(f"{'K':>7} {'depth':>5} {'tree [ms]':>16} {'dense [ms]':>18} {'speed-up':>9} "
           f"{'tree peak B':>12} {'dense peak B':>13} {'tree kept B':>12} {'dense kept B':>13} {'nodes':>6}")

@@ -30,3 +30,9 @@ def machine_info() -> dict:
     except (OSError, ValueError, IndexError):
         pass
     return info
+
+
+def machine_line(info: dict) -> str:
+    """The first line of a benchmark's table: which machine (from :func:`machine_info`)."""
+    return (f"machine: {info.get('cpu_model', '?')}, {info['cpu_count']} cores, numpy {info['numpy']}, "
+            f"python {info['python']}")

@@ -274,11 +274,10 @@ def test_block_tridiagonal_inverse_diagonal_matches_dense_inverse():
     np.testing.assert_allclose(block_tridiagonal_inverse_diagonal(D[:1], C[:0]), np.linalg.inv(D[:1]))
 
 
-def test_laplace_blocks_match_the_dense_inverse_of_the_normal_matrix(monkeypatch):
-    """The poses' σ and the landmarks' covariances are the diagonal blocks of (JᵀJ)⁻¹ at the solution."""
+def _spy_on_laplace(monkeypatch) -> dict:
+    """Record, at the smoother's Laplace step, the dense (JᵀJ)⁻¹ ("inverse") and the number of poses ("n_poses")."""
     import fastslam_edu.landmark.smoother as smoother
 
-    _, _, stream = simulate(16, duration=20.0)
     seen, laplace = {}, smoother._laplace
 
     def spy(problem, v, active, with_poses=True):
@@ -287,6 +286,13 @@ def test_laplace_blocks_match_the_dense_inverse_of_the_normal_matrix(monkeypatch
         return laplace(problem, v, active, with_poses)
 
     monkeypatch.setattr(smoother, "_laplace", spy)
+    return seen
+
+
+def test_laplace_blocks_match_the_dense_inverse_of_the_normal_matrix(monkeypatch):
+    """The poses' σ and the landmarks' covariances are the diagonal blocks of (JᵀJ)⁻¹ at the solution."""
+    _, _, stream = simulate(16, duration=20.0)
+    seen = _spy_on_laplace(monkeypatch)
     result = smooth(stream, _params(), pose_std=True)
     inverse, p = seen["inverse"], 3 * seen["n_poses"]
     np.testing.assert_allclose(result.pose_std.ravel(), np.sqrt(np.diag(inverse)[:p]), rtol=1e-9)
@@ -450,17 +456,8 @@ def test_a_calibrated_log_is_left_calibrated():
 def test_calibration_covariance_is_the_laplace_block(monkeypatch, calibrate):
     """With the calibration estimated, the landmarks' covariances and the calibration's σ are still the blocks of
     (JᵀJ)⁻¹ (the calibration is more variables after the landmarks)."""
-    import fastslam_edu.landmark.smoother as smoother
-
     _, _, stream = _miscalibrated(25, (1.05, 1.1), 0.1, duration=30.0)
-    seen, laplace = {}, smoother._laplace
-
-    def spy(problem, v, active, with_poses=True):
-        J = problem.evaluate(v, active)[1]
-        seen["inverse"], seen["n_poses"] = np.linalg.inv((J.T @ J).toarray()), problem.n_poses
-        return laplace(problem, v, active, with_poses)
-
-    monkeypatch.setattr(smoother, "_laplace", spy)
+    seen = _spy_on_laplace(monkeypatch)
     result = smooth(stream, _params(), pose_std=True, solver=SolverSettings(calibrate=calibrate))
     inverse, p, q = seen["inverse"], 3 * seen["n_poses"], len(calibrate)
     assert list(result.calibration) == [n for n in CALIBRATION_NAMES if n in calibrate]

@@ -354,10 +354,7 @@ def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLo
         inside = (result.t >= gt[0]) & (result.t <= gt[-1])
         start = score.path_alignment(result.pose_mean[inside, :2], groundtruth_at(log, result.t[inside])[:, :2])
     match = score.match_landmarks(result.landmarks, truth, start=start)
-    landmarks = np.full(truth.shape, np.nan)
-    landmarks[match[match >= 0]] = result.landmarks[match >= 0]
-    observed = np.zeros(len(truth), dtype=bool)
-    observed[match[match >= 0]] = True
+    landmarks, observed = score.in_survey_order(result.landmarks, match, len(truth))
     out: dict = {
         "correspondences": "unknown",
         "steps": int(len(result.t)),

@@ -80,6 +80,17 @@ def path_alignment(path_xy, truth_xy):
     return R, t
 
 
+def in_survey_order(estimate, match, n_truth: int) -> tuple[np.ndarray, np.ndarray]:
+    """The matched map landmarks (L, 2) put in the surveyed order: ``(landmarks (K, 2), observed (K,))``, NaN and
+    False where no map landmark is matched (``match`` from :func:`match_landmarks`), so that the scorers of known
+    correspondences apply."""
+    estimate, match = np.asarray(estimate, dtype=float).reshape(-1, 2), np.asarray(match)
+    landmarks, observed = np.full((n_truth, 2), np.nan), np.zeros(n_truth, dtype=bool)
+    landmarks[match[match >= 0]] = estimate[match >= 0]
+    observed[match[match >= 0]] = True
+    return landmarks, observed
+
+
 def landmarks_in_map(estimate) -> int:
     """How many landmarks the map holds."""
     return int(np.asarray(estimate, dtype=float).reshape(-1, 2).shape[0])
@@ -161,6 +172,6 @@ def merged_and_split(table, share: float = 0.2) -> tuple[int, int]:
     return int(np.sum((rows >= share).sum(axis=1) >= 2)), int(np.sum((cols >= share).sum(axis=0) >= 2))
 
 
-__all__ = ["association_table", "merged_and_split", "MAX_MATCH_DISTANCE", "match_landmarks", "path_alignment",
+__all__ = ["association_table", "in_survey_order", "merged_and_split", "MAX_MATCH_DISTANCE", "match_landmarks", "path_alignment",
            "landmarks_in_map", "landmarks_spurious", "association_accuracy",
            "oracle_association", "association_accuracy_oracle"]
