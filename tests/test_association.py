@@ -201,9 +201,9 @@ def test_joint_assignment_most_likely_first():
     P = one_particle([(3.0, 0.0), (3.0, 0.3)])  # A (ident 100), B (101)
     z = range_bearing(np.zeros(3), np.array([(3.0, 0.19), (3.0, 0.3)]))
     R_wide = np.diag([0.05**2, 0.05**2])
-    slot, ll = choose_landmarks(P, 0, z, np.repeat(R_wide[None], 2, axis=0), np.zeros((3, 3)), 1.0, RULES)
+    slot, ll = choose_landmarks(P, 0, P.poses[0], z, np.repeat(R_wide[None], 2, axis=0), np.zeros((3, 3)), 1.0, RULES)
     assert slot.tolist() == [0, 1] and np.all(np.isfinite(ll))
-    slot, _ = choose_landmarks(P, 0, z, np.repeat(R_wide[None], 2, axis=0), np.zeros((3, 3)), 1.0,
+    slot, _ = choose_landmarks(P, 0, P.poses[0], z, np.repeat(R_wide[None], 2, axis=0), np.zeros((3, 3)), 1.0,
                                RULES._replace(exclusive=False))
     assert slot.tolist() == [1, 1]
 
@@ -279,6 +279,55 @@ def test_matching_starts_from_the_path_alignment():
     assert score.landmarks_spurious(estimate, truth, start=start) == 0
 
 
+def test_sightings_beyond_the_checked_range_start_landmarks():
+    """A sighting beyond ``max_range`` (where negative evidence counts misses) but within ``new_max_range`` starts a
+    landmark; beyond ``new_max_range`` it is not mapped; a landmark beyond ``max_range`` is never missed."""
+    P = one_particle([(2.0, 0.0)])
+    out, _ = sight(P, [(2.0, 0.0), (6.0, 2.0)], RULES._replace(new_max_range=10.0))
+    assert P.n[0] == 2 and out.tolist() == [100, 7]
+    for i in range(20):  # the far one is outside the checked range: no misses, it stays
+        sight(P, [(2.0, 0.0)], RULES._replace(new_max_range=10.0), t=2.0 + i)
+    assert P.n[0] == 2 and P.missed[0, 1] == 0
+    P = one_particle([(2.0, 0.0)])
+    out, _ = sight(P, [(2.0, 0.0), (12.0, 2.0)], RULES._replace(new_max_range=10.0))
+    assert P.n[0] == 1 and out[0] == 100 and out[1] < 0  # not mapped: no identity given
+
+
+def test_ceiling_at_the_filter_pose_and_map():
+    """The ceiling is the oracle's rule at the filter's own poses (the last step at or before each sighting) against
+    its own map: with the true path and map it is the oracle; a map turned by 0.1 rad about the robot (the filter's
+    pose and map disagreeing) sends sightings of landmarks 0.3 m apart to the neighbour; an unmapped (NaN)
+    landmark is never chosen."""
+    landmarks = np.array([[3.0, 0.0], [3.0, 0.3], [3.0, 0.6], [3.0, -0.3]])
+    t, poses = np.array([0.0, 1.0]), np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.5]])  # the second step turns away
+    z = range_bearing(poses[0], landmarks)
+    sighting_t, true = np.full(4, 0.5), np.arange(4)  # seen between the steps: from the first pose
+    Rs = np.repeat(R[None], 4, axis=0)
+    oracle = score.association_accuracy_oracle(np.tile(poses[0], (4, 1)), z, Rs, landmarks, true)
+    assert score.association_accuracy_ceiling(t, poses, sighting_t, z, Rs, landmarks, true) == oracle == 1.0
+    c, s_ = math.cos(0.1), math.sin(0.1)
+    turned = landmarks @ np.array([[c, -s_], [s_, c]]).T
+    # each sighting lands on the turned copy of its neighbour; only the outermost one (at -0.3 m) has none
+    assert score.association_accuracy_ceiling(t, poses, sighting_t, z, Rs, turned, true) == 0.25
+    unmapped = landmarks.copy()
+    unmapped[2] = np.nan
+    assert score.oracle_association(np.tile(poses[0], (4, 1)), z, Rs, unmapped).tolist() == [0, 1, 1, 3]
+
+
+def test_fastslam2_proposal_with_unknown_correspondences(sim_run):
+    """FastSLAM 2.0's proposal (``proposal="fastslam2"``) with the association decided at the motion prediction: on
+    the simulation it associates as well as 1.0 and its map is as close; the same seed gives the same numbers."""
+    data, stream, one = sim_run
+    params = SIM_PARAMS.replace(filter=SIM_FILTER.replace(proposal="fastslam2"))
+    two = run_unknown(stream, params, 0)
+    truth = data.landmark_positions
+    for result in (one, two):
+        match = score.match_landmarks(result.landmarks, truth)
+        assert score.association_accuracy(result.history, stream.landmark, result.landmark_ident, match) > 0.9
+    np.testing.assert_array_equal(run_unknown(stream, params, 0).history, two.history)
+    assert not np.array_equal(two.pose_mean, one.pose_mean)
+
+
 def test_best_history_follows_the_ancestors():
     """Two instants of one sighting each, two particles; after the first instant particle 1 descends from 0."""
     assoc = np.array([[5, 8], [6, 9]])
@@ -330,3 +379,43 @@ def test_association_table_counts_merged_and_split():
     table = score.association_table(history, true, ident, 3)
     assert table.tolist() == [[2, 2, 0, 1], [0, 0, 2, 0], [0, 0, 3, 0]]
     assert score.merged_and_split(table) == (1, 1)
+
+
+_PLAIN_PYTHON_UNKNOWN = """
+import sys
+sys.path.insert(0, {tests!r})
+import numpy as np
+from fastslam_edu.datasets.events import event_stream
+from fastslam_edu.datasets.sim import simulate_dataset
+from fastslam_edu.landmark import association
+from test_association import SIM_PARAMS, SIM_FILTER
+assert not hasattr(association.choose_landmarks, "py_func"), "numba compiled: NUMBA_DISABLE_JIT was not honoured"
+data = simulate_dataset(2, duration=20.0)
+stream = event_stream(data.robots[1], data.landmark_subjects)
+out = {{}}
+for proposal in ("motion", "fastslam2"):
+    p = SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal))
+    r = association.run_unknown(stream, p, 3)
+    out[proposal + "_history"], out[proposal + "_pose"] = r.history, r.pose_mean
+np.savez({out!r}, **out)
+"""
+
+
+def test_unknown_correspondences_run_as_plain_python_with_the_same_numbers(tmp_path):
+    """NUMBA_DISABLE_JIT=1 (a fresh interpreter): the association kernels run as Python, FastSLAM 1.0 and 2.0, and
+    give the compiled run's associations and poses."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = tmp_path / "plain.npz"
+    code = _PLAIN_PYTHON_UNKNOWN.format(tests=str(Path(__file__).parent), out=str(out))
+    subprocess.run([sys.executable, "-c", code], check=True, env=dict(os.environ, NUMBA_DISABLE_JIT="1"), timeout=600)
+    plain = np.load(out)
+    data = simulate_dataset(2, duration=20.0)
+    stream = event_stream(data.robots[1], data.landmark_subjects)
+    for proposal in ("motion", "fastslam2"):
+        r = run_unknown(stream, SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal)), 3)
+        np.testing.assert_array_equal(plain[proposal + "_history"], r.history)
+        np.testing.assert_allclose(plain[proposal + "_pose"], r.pose_mean, rtol=0, atol=1e-9)

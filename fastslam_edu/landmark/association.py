@@ -10,8 +10,8 @@ sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
    (:func:`fastslam_edu.core.ekf.ekf_update`) and the weight grows by the
    log-likelihood the decision was made with; if :math:`p_0` wins a new landmark is
    initialised (:func:`fastslam_edu.core.ekf.ekf_initialise`) and the weight grows by
-   :math:`\\log p_0`. Only sightings within the range where negative evidence can
-   check them (``min_range`` … ``max_range``) start landmarks.
+   :math:`\\log p_0`. Sightings from ``min_range`` to ``new_max_range`` start landmarks; negative
+   evidence checks them once they are within ``max_range``.
 2. **Mutual exclusion** (optional, ``exclusive``): within one camera frame two
    sightings are two different things. The pairs (sighting, landmark) of the instant
    are taken most likely first, each sighting and each landmark once.
@@ -24,7 +24,7 @@ sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
    :math:`p_D` is the probability that the camera reports a landmark in view (on
    MR.CLAM only 0.1–0.6), :math:`p_F` the probability that clutter (another robot,
    a misread) is seen again at the same place. A landmark whose log odds fall
-   below zero is removed. The log odds are clamped at ``n_confirm`` sightings' worth,
+   below zero is removed. The log odds are clamped at ``log_odds_cap_sightings`` sightings' worth,
    so a copy that a newer landmark has replaced goes after a few dozen misses.
 4. **Confirmation**: sightings of one landmark a fraction of a second apart are not
    independent (``measurement_correlation_s``, :math:`\\tau`): a landmark counts the
@@ -59,6 +59,12 @@ history of the final best particle can be read back through its ancestors
 The kernels are numba ``njit(cache=True)`` and run as plain Python with
 ``NUMBA_DISABLE_JIT=1``; the motion model, weights and resampling are the
 kernels of :mod:`fastslam_edu.landmark.fastslam_step`.
+
+With FastSLAM 2.0's proposal (``filter.proposal = "fastslam2"``,
+:func:`associate_particle_improved`), the association is decided at the motion
+prediction :math:`\\bar x` with its covariance added to :math:`Q`, and the sightings
+of landmarks seen before then move the pose by the proposal
+(:func:`fastslam_edu.landmark.proposal.improved_pose_into`).
 """
 
 from __future__ import annotations
@@ -76,8 +82,10 @@ from fastslam_edu.core.ekf import LOG_2PI, ekf_initialise, ekf_innovation, ekf_u
 from fastslam_edu.core.params import Params
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.fastslam import (RESAMPLER_CODES, FastSLAMParams, _segments, stream_commands)
-from fastslam_edu.landmark.fastslam_step import (Log, Settings, normalise_weights, resampling_indices,
-                                                 sample_segment, standard_normals, weighted_mean_pose)
+from fastslam_edu.landmark.fastslam_step import (Log, Settings, motion_prediction_of, normalise_weights,
+                                                 resampling_indices, sample_segment, standard_normals,
+                                                 weighted_mean_pose)
+from fastslam_edu.landmark.proposal import improved_pose_into
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,6 +131,14 @@ class AssociationParams(Params):
         The drift counts at most this long [s].
     association_range_scale : float
         Scale of the range standard deviation in the association's :math:`Q` (1: the filter's :math:`R`).
+    proposal_min_count : int
+        With FastSLAM 2.0's proposal (``filter.proposal = "fastslam2"``): a sighting moves the particle's pose only
+        if its landmark was seen this many times (a landmark made from one sighting knows nothing of the pose).
+    new_max_range : float
+        Sightings up to this range [m] may start a landmark (at least ``min_range``). It may exceed ``max_range``:
+        such a landmark is not checked by negative evidence until the robot comes within ``max_range`` of it.
+    log_odds_cap_sightings : float
+        The existence log odds are clamped at this many sightings' worth (:func:`existence_log_odds`).
     """
 
     filter: FastSLAMParams = field(default_factory=FastSLAMParams)
@@ -141,12 +157,15 @@ class AssociationParams(Params):
     drift_theta: float = 0.05
     association_range_scale: float = 1.0
     drift_cap_s: float = 5.0
+    proposal_min_count: int = 2
+    new_max_range: float = 10.0
+    log_odds_cap_sightings: float = 5.0
 
     def __post_init__(self):
         if not isinstance(self.filter, FastSLAMParams):
             raise ValueError(f"filter must be a FastSLAMParams, got {self.filter!r}")
-        if self.filter.mode != "slam" or self.filter.proposal != "motion":
-            raise ValueError("unknown correspondences: FastSLAM 1.0 in mode 'slam' only")
+        if self.filter.mode != "slam":
+            raise ValueError("unknown correspondences: mode 'slam' only")
         if self.filter.resampler not in RESAMPLER_CODES:
             raise ValueError(f"resampler must be one of {sorted(RESAMPLER_CODES)}, got {self.filter.resampler!r}")
         if not (math.isfinite(self.new_landmark_chi2) and self.new_landmark_chi2 > 0):
@@ -172,7 +191,9 @@ class AssociationParams(Params):
                      math.log((1.0 - self.detection_probability) / (1.0 - self.clutter_probability)),
                      0.0 if tau is None else float(tau), float(self.pose_uncertainty), bool(self.provisional_as_new),
                      float(self.drift_xy), float(self.drift_theta), float(self.association_range_scale),
-                     float(self.drift_cap_s))
+                     float(self.drift_cap_s), int(self.proposal_min_count),
+                     float(self.new_max_range),
+                     float(self.log_odds_cap_sightings) * math.log(self.detection_probability / self.clutter_probability))
 
 
 class MapParticles(NamedTuple):
@@ -227,6 +248,9 @@ class Rules(NamedTuple):
     drift_theta: float
     range_scale: float
     drift_cap_s: float
+    min_count: int
+    new_max_range: float
+    log_odds_cap: float
 
 
 # ---------------------------------------------------------------- one particle, one sighting
@@ -297,8 +321,9 @@ def best_landmark(P, m, z, R, taken, cloud, t, rules):
 
 
 @njit(cache=True)
-def choose_landmarks(P, m, z, R, cloud, t, rules):
-    """The association of one instant's sightings ``z`` (n, 2) for particle ``m``: ``(slot, loglik)`` (n,), (n,),
+def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
+    """The association of one instant's sightings ``z`` (n, 2) for particle ``m`` at ``pose`` (3,) (its own pose,
+    or FastSLAM 2.0's motion prediction :math:`\\bar x`, with ``cloud`` its covariance): ``(slot, loglik)`` (n,), (n,),
     the slot each goes to (-1: a new landmark) and its log-likelihood :math:`\\ell_{ik}` (-inf for a new one).
 
     Every pair ``(i, k)`` with :math:`d^2_{ik} \\le d_0^2` is a candidate, scored by its log-likelihood
@@ -312,8 +337,8 @@ def choose_landmarks(P, m, z, R, cloud, t, rules):
     ll = np.full((n, K), -math.inf)
     for i in range(n):
         for k in range(K):
-            lik, d2 = association_loglik(P.poses[m], z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud,
-                                         t - P.last_t[m, k], rules)
+            lik, d2 = association_loglik(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k],
+                                         rules)
             if d2 <= rules.new_chi2:
                 ll[i, k] = lik
     slot = np.full(n, -1, dtype=np.int64)
@@ -383,12 +408,12 @@ def existence_log_odds(log_odds, seen, rules):
     """The existence log odds of a landmark after one instant in view: seen (``True``) or missed.
 
     :math:`L \\mathrel{+}= \\log\\frac{p_D}{p_F}` for a sighting, :math:`\\log\\frac{1-p_D}{1-p_F}` (< 0) for a miss,
-    from :math:`L = 0` (even odds) before the first sighting; clamped above at ``n_confirm`` sightings' worth,
+    from :math:`L = 0` (even odds) before the first sighting; clamped above at ``log_odds_cap_sightings``' worth,
     so that a landmark seen for a long time is still removed after a few dozen misses once it has gone (a
     copy that a newer landmark has replaced): :math:`p_D` = 0.3, :math:`p_F` = 0.05 give +1.79 and -0.31.
     """
     if seen:
-        return min(log_odds + rules.log_odds_seen, rules.n_confirm * rules.log_odds_seen)
+        return min(log_odds + rules.log_odds_seen, rules.log_odds_cap)
     return log_odds + rules.log_odds_missed
 
 
@@ -410,23 +435,53 @@ def negative_evidence(P, m, taken, rules):
 
 @njit(cache=True)
 def associate_particle(P, m, instant, rules, next_ident, out, cloud):
-    """The sightings of one instant, ``instant = (z (n, 2), R (n, 2, 2), t)``, for particle ``m``: association
-    (:func:`choose_landmarks`), update, weight, negative evidence. ``out`` (n,) receives the identity of the
-    landmark each sighting went to (-1: none); ``next_ident`` (1,) is the shared counter of new identities.
+    """The sightings of one instant, ``instant = (z (n, 2), R (n, 2, 2), t)``, for particle ``m`` (FastSLAM 1.0):
+    association at the particle's pose (:func:`choose_landmarks`, ``cloud`` (3, 3) the pose covariance it adds),
+    then :func:`apply_associations`. ``out`` (n,) receives the identity of the landmark each sighting went to
+    (-1: none); ``next_ident`` (1,) is the shared counter of new identities."""
+    z, R, t = instant
+    slot, lls = choose_landmarks(P, m, P.poses[m], z, R, cloud, t, rules)
+    apply_associations(P, m, instant, (slot, lls), rules, next_ident, out)
+
+
+@njit(cache=True)
+def associate_particle_improved(P, m, instant, rules, next_ident, out, prediction, rng):
+    """The same with FastSLAM 2.0's proposal: the association is decided at the motion prediction
+    ``prediction = (x_bar (3,), cov (3, 3))`` with its covariance (:func:`choose_landmarks`); then each sighting
+    assigned to a landmark seen at least ``rules.min_count`` times moves the particle's pose by the proposal
+    (:func:`fastslam_edu.landmark.proposal.improved_pose_into`, in the sightings' order) and weighs it by
+    :math:`\\mathcal N(z; \\hat z(\\bar x), S)`; :func:`apply_associations` then updates the map from the new pose."""
+    z, R, t = instant
+    x_bar, cov = prediction[0].copy(), prediction[1].copy()
+    slot, lls = choose_landmarks(P, m, x_bar, z, R, cov, t, rules)
+    e = np.empty(2)
+    for i in range(z.shape[0]):
+        k = slot[i]
+        if k < 0 or P.seen[m, k] < rules.min_count:
+            continue
+        e[0], e[1] = rng.standard_normal(), rng.standard_normal()
+        _, lls[i] = improved_pose_into(P.poses[m], x_bar, cov, P.mu[m, k], P.sigma[m, k], z[i], R[i], e)
+    apply_associations(P, m, instant, (slot, lls), rules, next_ident, out)
+
+
+@njit(cache=True)
+def apply_associations(P, m, instant, chosen, rules, next_ident, out):
+    """Update, weight and negative evidence for particle ``m`` once ``chosen = (slot (n,), loglik (n,))`` is decided
+    (:func:`choose_landmarks`); ``out`` (n,) receives the identity of the landmark each sighting went to.
 
     An assigned sighting updates its landmark's EKF and multiplies the weight by its likelihood (tempered
     by :math:`\\beta = \\min(1, \\Delta t/\\tau)`); a provisional landmark's, or a new one's, by :math:`p_0`.
     """
     z, R, t = instant
+    slot, lls = chosen
     taken = np.zeros(P.mu.shape[1], dtype=np.bool_)
-    slot, lls = choose_landmarks(P, m, z, R, cloud, t, rules)
     for i in range(z.shape[0]):
         k = slot[i]
         if k < 0:
             continue
         beta = 1.0 if rules.tau <= 0.0 else min(1.0, (t - P.last_t[m, k]) / rules.tau)
-        ekf_update(P.poses[m], z[i], R[i], P.mu[m, k], P.sigma[m, k], math.inf)
         ll = lls[i]  # the likelihood the association was decided by: weight and decision agree
+        ekf_update(P.poses[m], z[i], R[i], P.mu[m, k], P.sigma[m, k], math.inf)
         if P.evidence[m, k] < rules.n_confirm and rules.provisional_as_new:
             ll = new_landmark_loglik(R[i], rules.new_chi2)  # a provisional landmark explains nothing yet
         P.logw[m] += beta * ll
@@ -437,8 +492,8 @@ def associate_particle(P, m, instant, rules, next_ident, out, cloud):
         out[i] = P.ident[m, k]
         taken[k] = True
     for i in range(z.shape[0]):
-        if slot[i] >= 0 or not rules.min_range <= z[i, 0] <= rules.max_range:
-            continue  # assigned, or too far to be checked by negative evidence: not mapped
+        if slot[i] >= 0 or not rules.min_range <= z[i, 0] <= rules.new_max_range:
+            continue  # assigned, or outside the range where a sighting starts a landmark: not mapped
         P.logw[m] += new_landmark_loglik(R[i], rules.new_chi2)  # p0 wins: a landmark never seen before
         k = add_landmark(P, m, z[i], R[i], next_ident[0], t)
         out[i] = -1 if k < 0 else next_ident[0]
@@ -515,6 +570,7 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out):
         a, b = L.offsets[last], L.offsets[last + 1]
         measured = b > a
         n_record = last - first + (0 if measured else 1)
+        x_start = P.poses.copy() if s.proposal == 1 else P.poses[:0].copy()
         eps = np.empty((last - first + 1, s.n_draws, M))
         standard_normals(rng, eps)
         sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, w,
@@ -523,10 +579,16 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out):
             continue
         q = out.totals[0]
         before = out.next_ident[0]
-        cloud = pose_covariance(P.poses, w) * rules.pose_scale
-        for m in range(M):
-            associate_particle(P, m, (L.z[a:b], L.R[a:b], L.t[last]), rules, out.next_ident, out.assoc[m, a:b],
-                               cloud)
+        instant = (L.z[a:b], L.R[a:b], L.t[last])
+        if s.proposal == 1:
+            x_bar, cov = motion_prediction_of(x_start, L.u[first:last + 1], L.dt[first:last + 1], s)
+            for m in range(M):
+                associate_particle_improved(P, m, instant, rules, out.next_ident, out.assoc[m, a:b],
+                                            (x_bar[m], cov[m]), rng)
+        else:
+            cloud = pose_covariance(P.poses, w) * rules.pose_scale
+            for m in range(M):
+                associate_particle(P, m, instant, rules, out.next_ident, out.assoc[m, a:b], cloud)
         out.totals[2] += out.next_ident[0] - before
         out.instant_of[a:b] = q
         n_eff = normalise_weights(P.logw, w)
@@ -584,7 +646,7 @@ class AssociationResult:
 
 def run_unknown(stream: EventStream, params: AssociationParams = AssociationParams(), rng=0, *,
                 x0=None) -> AssociationResult:
-    """Run FastSLAM 1.0 with unknown correspondences over ``stream``.
+    """Run FastSLAM with unknown correspondences over ``stream`` (1.0, or 2.0's proposal: ``params.filter.proposal``).
 
     Only the stream's times, commands and sightings ``z`` are used: ``stream.landmark`` (the identities)
     is never read. ``x0``: the initial pose (default ``stream.x0``).
@@ -607,7 +669,8 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
     rules = params.rules()
     log = Log(np.asarray(stream.t, dtype=float), u, dt, offsets, z, np.zeros(n, dtype=np.int64), R)  # no identities
     settings = Settings(fp.motion_noise.densities, fp.motion_noise.n_draws, math.inf, math.inf, 0.0, True,
-                        float(fp.resample_threshold), RESAMPLER_CODES[fp.resampler])
+                        float(fp.resample_threshold), RESAMPLER_CODES[fp.resampler],
+                        1 if fp.proposal == "fastslam2" else 0)
     out = AssociationRecord(np.full(M, 1.0 / M), np.empty((N, 3)), np.empty((N, 3)), np.full((M, n), -1, dtype=np.int64),
                             np.empty((n_instants, M), dtype=np.int64), np.zeros(n, dtype=np.int64),
                             np.zeros(1, dtype=np.int64), np.zeros(3, dtype=np.int64))
