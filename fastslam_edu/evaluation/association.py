@@ -13,6 +13,9 @@ sees a barcode; the barcodes only score it:
 * :func:`association_accuracy_oracle`: the same fraction for maximum-likelihood
   association at the groundtruth pose against the surveyed map, with the filter's
   :math:`R`: the best any association can do with this sensor;
+* :func:`association_accuracy_ceiling`: the same at a filter's own path against its own final map (with
+  known correspondences): the best an association decided in the filter's frame can do with the map
+  the filter can build;
 * :func:`landmarks_in_map` and :func:`landmarks_spurious` (map landmarks matched to no surveyed one).
 """
 
@@ -122,16 +125,20 @@ def association_accuracy(history, true_index, map_ident, map_match) -> float:
 def oracle_association(poses, z, R, landmarks) -> np.ndarray:
     """Maximum-likelihood association at known poses (n, 3) against a known map (K, 2): the index per sighting.
 
-    :math:`\\arg\\max_j \\log\\mathcal N(z \\ominus h(x, m_j); 0, R)` with the sighting's ``R`` (n, 2, 2).
+    :math:`\\arg\\max_j \\log\\mathcal N(z \\ominus h(x, m_j); 0, R)` with the sighting's ``R`` (n, 2, 2); rows of
+    ``landmarks`` that are NaN (not in a map) are never chosen.
     """
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     z = np.asarray(z, dtype=float).reshape(-1, 2)
     R = np.broadcast_to(np.asarray(R, dtype=float), (len(z), 2, 2))
     landmarks = np.asarray(landmarks, dtype=float).reshape(-1, 2)
-    nu = innovation(z[:, None, :], range_bearing(poses[:, None, :], landmarks[None, :, :]))  # (n, K, 2)
+    mapped = np.flatnonzero(np.isfinite(landmarks).all(axis=1))  # a landmark at NaN (not in the map) is never chosen
+    if len(mapped) == 0:
+        raise ValueError("oracle_association: no landmark with a finite position")
+    nu = innovation(z[:, None, :], range_bearing(poses[:, None, :], landmarks[None, mapped, :]))  # (n, K, 2)
     Rinv = np.linalg.inv(R)[:, None]
     d2 = np.einsum("nki,nkij,nkj->nk", nu, np.broadcast_to(Rinv, nu.shape[:2] + (2, 2)), nu)
-    return np.argmin(d2, axis=1).astype(np.int64)  # one R per sighting: the likelihood falls with d²
+    return mapped[np.argmin(d2, axis=1)].astype(np.int64)  # one R per sighting: the likelihood falls with d²
 
 
 def association_accuracy_oracle(poses, z, R, landmarks, true_index) -> float:
@@ -142,6 +149,21 @@ def association_accuracy_oracle(poses, z, R, landmarks, true_index) -> float:
         return float("nan")
     guess = oracle_association(np.asarray(poses)[scored], np.asarray(z)[scored], np.asarray(R)[scored], landmarks)
     return float(np.mean(guess == true_index[scored]))
+
+
+def association_accuracy_ceiling(t, poses, sighting_t, z, R, landmarks, true_index) -> float:
+    """The fraction of landmark sightings that maximum-likelihood association gets right at a filter's own
+    poses against its own map: :func:`association_accuracy_oracle` with the pose of the filter's last step at
+    or before each sighting, ``poses`` (N, 3) at times ``t`` (N,), and its final map ``landmarks`` (K, 2) in the
+    surveyed order (NaN rows: not mapped, never chosen).
+
+    Run on the result of FastSLAM *with* known correspondences, it bounds what any association decided in
+    the filter's frame can reach: even told the final map in advance, a sighting goes to the wrong landmark
+    when the filter's pose and map disagree, relative to each other, by more than the landmarks' spacing.
+    ``sighting_t`` (n,), ``z`` (n, 2), ``R`` (n, 2, 2), ``true_index`` (n,) as for the oracle."""
+    t = np.asarray(t, dtype=float)
+    k = np.clip(np.searchsorted(t, np.asarray(sighting_t, dtype=float), side="right") - 1, 0, len(t) - 1)
+    return association_accuracy_oracle(np.asarray(poses, dtype=float)[k], z, R, landmarks, true_index)
 
 
 def association_table(history, true_index, map_ident, n_landmarks: int) -> np.ndarray:
@@ -174,4 +196,4 @@ def merged_and_split(table, share: float = 0.2) -> tuple[int, int]:
 
 __all__ = ["association_table", "in_survey_order", "merged_and_split", "MAX_MATCH_DISTANCE", "match_landmarks", "path_alignment",
            "landmarks_in_map", "landmarks_spurious", "association_accuracy",
-           "oracle_association", "association_accuracy_oracle"]
+           "oracle_association", "association_accuracy_oracle", "association_accuracy_ceiling"]

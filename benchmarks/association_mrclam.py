@@ -1,0 +1,112 @@
+"""FastSLAM with unknown correspondences on MR.CLAM, against the association targets and two bounds.
+
+Every robot with groundtruth — Dataset 1 robot 2 and the five robots of Dataset 6 (named by the targets), and
+Dataset 1 robot 1 (not tuned on) — at full rate with the default ``AssociationParams``, over seeds 0 … N-1. For
+each robot the table gives, as medians over the seeds:
+
+* **oracle**: maximum-likelihood association at the groundtruth pose against the surveyed map, with the
+  filter's :math:`R` (:func:`fastslam_edu.evaluation.association.association_accuracy_oracle`);
+* **ceiling**: the same at the filter's own mean path against its own final map, both from FastSLAM run *with*
+  known correspondences (:func:`fastslam_edu.evaluation.association.association_accuracy_ceiling`): what an
+  association decided in the filter's frame reaches even when told the final map in advance;
+* **unknown**: the accuracy of FastSLAM without barcodes
+  (:func:`fastslam_edu.app.experiment.run_mrclam_unknown`), its ratio to the oracle (target ≥ 0.95), the
+  spurious landmarks (target ≤ 2) and the aligned landmark error (target ≤ 0.30 m).
+
+Prints a table and writes JSON (``results/association_mrclam.json``).
+
+Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs 2] [--out FILE]
+(data from $FASTSLAM_EDU_DATA, default ./data; about 2 min on 2 cores for 3 seeds)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import machine_info, machine_line  # noqa: E402
+
+from fastslam_edu.app.experiment import anonymous_stream, run_mrclam, run_mrclam_unknown  # noqa: E402
+from fastslam_edu.datasets import mrclam_path  # noqa: E402
+from fastslam_edu.evaluation.association import association_accuracy_ceiling  # noqa: E402
+from fastslam_edu.landmark.association import AssociationParams  # noqa: E402
+
+ROBOTS = [(1, 2), (6, 1), (6, 2), (6, 3), (6, 4), (6, 5)]  # named by the targets
+EXTRA = [(1, 1)]  # has groundtruth, never tuned on
+TARGETS = {"ratio_to_oracle": 0.95, "landmarks_spurious": 2, "landmark_error_aligned_mean_m": 0.30}
+
+
+def ceiling(dataset: int, robot: int, seed: int) -> float:
+    """The association ceiling of FastSLAM's own path and map with known correspondences (module docstring)."""
+    path = mrclam_path(dataset)
+    known, _, context = run_mrclam(path, robot, seed=seed)
+    stream, true_index = anonymous_stream(path, robot, context["dataset"], context["log"], x0=context["stream"].x0)
+    landmarks = np.where(known.observed[:, None], known.landmarks_mean, np.nan)
+    step = np.searchsorted(stream.offsets, np.arange(len(true_index)), side="right") - 1
+    R = AssociationParams().filter.measurement_covariance(stream.z)
+    return association_accuracy_ceiling(known.t, known.pose_mean, stream.t[step], stream.z, R, landmarks, true_index)
+
+
+def _run(job) -> dict:
+    dataset, robot, seed = job
+    _, summary, _ = run_mrclam_unknown(mrclam_path(dataset), robot, seed=seed)
+    oracle = summary["association_accuracy_oracle"]
+    return {"dataset": dataset, "robot": robot, "seed": seed, "oracle": oracle,
+            "ceiling": ceiling(dataset, robot, seed), "accuracy": summary["association_accuracy"],
+            "ratio_to_oracle": summary["association_accuracy"] / oracle,
+            "landmarks_spurious": summary["landmarks_spurious"], "landmarks_in_map": summary["landmarks_in_map"],
+            "landmark_error_aligned_mean_m": summary["landmark_error_aligned_mean_m"],
+            "path_rmse_aligned_m": summary["path_rmse_aligned_m"], "filter_seconds": summary["filter_seconds"]}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "association_mrclam.json")
+    args = ap.parse_args(argv)
+    robots = ROBOTS + EXTRA
+    with ProcessPoolExecutor(args.jobs) as pool:
+        runs = list(pool.map(_run, [(d, r, s) for d, r in robots for s in range(args.seeds)]))
+    keys = ("oracle", "ceiling", "accuracy", "ratio_to_oracle", "landmarks_spurious", "landmarks_in_map",
+            "landmark_error_aligned_mean_m", "path_rmse_aligned_m")
+    table = []
+    for d, r in robots:
+        mine = [x for x in runs if (x["dataset"], x["robot"]) == (d, r)]
+        row = {"robot": f"D{d}R{r}", "named_by_targets": (d, r) in ROBOTS}
+        row.update({k: statistics.median(x[k] for x in mine) for k in keys})
+        row["ceiling_to_oracle"] = row["ceiling"] / row["oracle"]
+        row["ratio_range"] = [min(x["ratio_to_oracle"] for x in mine), max(x["ratio_to_oracle"] for x in mine)]
+        row["meets"] = {k: (row[k] >= v if k == "ratio_to_oracle" else row[k] <= v) for k, v in TARGETS.items()}
+        table.append(row)
+    info = machine_info()
+    print(machine_line(info))
+    print(f"FastSLAM 1.0, unknown correspondences, full rate, defaults, seeds 0-{args.seeds - 1}: medians")
+    print(f"{'robot':<6} {'oracle':>7} {'ceiling':>13} {'unknown':>8} {'/oracle':>8} {'(range)':>13} "
+          f"{'spurious':>9} {'aligned [m]':>12}")
+    for row in table:
+        mark = {k: " " if row["meets"][k] else "*" for k in TARGETS}
+        lo, hi = row["ratio_range"]
+        print(f"{row['robot']:<6} {row['oracle']:>7.3f} {row['ceiling']:>6.3f} ({row['ceiling_to_oracle']:.2f}) "
+              f"{row['accuracy']:>8.3f} {row['ratio_to_oracle']:>7.2f}{mark['ratio_to_oracle']} "
+              f"{f'({lo:.2f}-{hi:.2f})':>13} {row['landmarks_spurious']:>8.0f}{mark['landmarks_spurious']} "
+              f"{row['landmark_error_aligned_mean_m']:>11.2f}{mark['landmark_error_aligned_mean_m']}")
+    print("* misses the target (ratio to the oracle >= 0.95, spurious <= 2, aligned landmark error <= 0.30 m); "
+          "ceiling: own path and own map with known correspondences (its ratio to the oracle in brackets); "
+          + ", ".join(f"D{d}R{r}" for d, r in EXTRA) + ": not tuned on")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"machine": info, "params": AssociationParams().to_dict(), "seeds": args.seeds,
+                                    "targets": TARGETS, "table": table, "runs": runs}, indent=2))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
