@@ -16,7 +16,7 @@ each robot the table gives, as medians over the seeds:
 Prints a table and writes JSON (``results/association_mrclam.json``).
 
 Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs 2] [--out FILE]
-(data from $FASTSLAM_EDU_DATA, default ./data; about 2 min on 2 cores for 3 seeds)
+(data from $FASTSLAM_EDU_DATA, default ./data; about 30 s on 2 cores for 3 seeds)
 """
 
 from __future__ import annotations
