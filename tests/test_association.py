@@ -324,6 +324,8 @@ def test_fastslam2_proposal_with_unknown_correspondences(sim_run):
     for result in (one, two):
         match = score.match_landmarks(result.landmarks, truth)
         assert score.association_accuracy(result.history, stream.landmark, result.landmark_ident, match) > 0.9
+        estimate, observed = score.in_survey_order(result.landmarks, match, len(truth))
+        assert np.nanmean(landmark_errors_aligned(estimate, truth, observed)) < 0.15
     np.testing.assert_array_equal(run_unknown(stream, params, 0).history, two.history)
     assert not np.array_equal(two.pose_mean, one.pose_mean)
 
@@ -370,6 +372,10 @@ def test_cli_unknown_correspondences(sim_folder, tmp_path, capsys):
     assert (e["sightings"], e["clutter_sightings"], e["association_accuracy_oracle"]) == \
         (s["sightings"], s["clutter_sightings"], s["association_accuracy_oracle"])  # the same log, the same bound
     assert 0.0 <= e["association_accuracy"] <= 1.0
+    two = tmp_path / "two.json"
+    assert main(["run", "--data", str(sim_folder), "--robot", "1", "--particles", "20", "--quiet", "--correspondences",
+                 "unknown", "--proposal", "fastslam2", "--json", str(two)]) == 0
+    assert json.loads(two.read_text())["params"]["filter"]["proposal"] == "fastslam2"
 
 
 def test_association_table_counts_merged_and_split():

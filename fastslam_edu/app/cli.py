@@ -239,14 +239,14 @@ def cmd_run_unknown(args) -> int:
     from fastslam_edu.app.experiment import run_mrclam_unknown
     from fastslam_edu.landmark.association import AssociationParams
 
-    given = [name for name, used in (("--proposal", args.proposal != "motion"), ("--mode", args.mode != "slam"),
-                                     ("--smooth", args.smooth), ("--rate 1hz", args.rate != "full")) if used]
+    given = [name for name, used in (("--mode", args.mode != "slam"), ("--smooth", args.smooth),
+                                     ("--rate 1hz", args.rate != "full")) if used]
     if given:
         raise ValueError(f"{', '.join(given)}: not available with --correspondences unknown")
     defaults = AssociationParams()
     f = defaults.filter
     params = defaults.replace(filter=f.replace(n_particles=f.n_particles if args.particles is None else args.particles,
-                                               resampler=args.resampler or f.resampler))
+                                               resampler=args.resampler or f.resampler, proposal=args.proposal))
     result, summary, ctx = run_mrclam_unknown(args.data, args.robot, params, args.seed, rate=args.rate, x0=args.x0,
                                               groundtruth_file=args.groundtruth, audit=not args.no_audit)
     summary["filter"] = "fastslam"
