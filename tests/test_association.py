@@ -19,7 +19,7 @@ from fastslam_edu.evaluation import association as score
 from fastslam_edu.evaluation.metrics import landmark_errors_aligned
 from fastslam_edu.landmark.association import (AssociationParams, associate_particle, best_history,
                                                 choose_landmarks, existence_log_odds, initial_particles,
-                                                new_landmark_loglik, run_unknown)
+                                                new_landmark_loglik, retire_landmarks, run_unknown)
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 
 #: The simulator's sensor (σ_r 5 cm, σ_φ 0.02 rad), told to the filter as it is.
@@ -328,6 +328,41 @@ def test_fastslam2_proposal_with_unknown_correspondences(sim_run):
         assert np.nanmean(landmark_errors_aligned(estimate, truth, observed)) < 0.15
     np.testing.assert_array_equal(run_unknown(stream, params, 0).history, two.history)
     assert not np.array_equal(two.pose_mean, one.pose_mean)
+
+
+def test_retired_landmark_passes_its_identity_to_its_copy():
+    """A confirmed landmark whose existence log odds fell below zero goes; the nearest landmark made after it, within
+    ``inherit_radius``, takes its identity and its sightings, keeps its own evidence, and the hand-over is recorded.
+    An older neighbour, or a newer one beyond the radius, takes nothing; with radius 0 nobody does."""
+    def particle():
+        P = one_particle([(3.0, 0.0), (3.3, 0.2), (2.8, -0.3), (5.0, 3.0)], seen=10)  # idents 100 … 103
+        P.first_t[0, :4] = (5.0, 9.0, 1.0, 9.0)  # 101 and 103 were made after 100, 102 before it
+        P.evidence[0, 1] = 2.0
+        P.log_odds[0, 0] = -0.1
+        return P
+
+    P, renames = particle(), np.zeros((4, 4), dtype=np.int64)
+    retire_landmarks(P, 0, RULES._replace(inherit_radius=1.0), renames, 7)
+    assert P.n[0] == 3 and sorted(P.ident[0, :3].tolist()) == [100, 102, 103]
+    heir = int(np.flatnonzero(P.ident[0, :3] == 100)[0])
+    np.testing.assert_allclose(P.mu[0, heir], (3.3, 0.2))
+    assert P.seen[0, heir] == 20 and P.evidence[0, heir] == 2.0
+    assert renames[0, 0] == 1 and renames[1].tolist() == [7, 0, 101, 100]
+    P, renames = particle(), np.zeros((4, 4), dtype=np.int64)
+    retire_landmarks(P, 0, RULES._replace(inherit_radius=0.0), renames, 7)
+    assert sorted(P.ident[0, :3].tolist()) == [101, 102, 103] and renames[0, 0] == 0
+
+
+def test_best_history_reads_the_hand_overs_of_its_ancestors():
+    """Identity 9 handed over to 5 by particle 1 at instant 0, which the final particle 1 descends from: its history
+    reads 5 for every sighting given 9. A hand-over made by a particle outside the line of ancestors is not read."""
+    assoc = np.array([[5, 9], [5, 9]])
+    parents = np.array([[0, 1], [0, 1]])
+    instant_of = np.array([0, 1])
+    renames = np.array([[1, 0, 0, 0], [0, 1, 9, 5]])
+    assert best_history(assoc, parents, instant_of, 1, renames).tolist() == [5, 5]
+    assert best_history(assoc, parents, instant_of, 0, renames).tolist() == [5, 9]
+    assert best_history(assoc, parents, instant_of, 1).tolist() == [5, 9]
 
 
 def test_best_history_follows_the_ancestors():

@@ -25,7 +25,10 @@ sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
    MR.CLAM only 0.1–0.6), :math:`p_F` the probability that clutter (another robot,
    a misread) is seen again at the same place. A landmark whose log odds fall
    below zero is removed. The log odds are clamped at ``log_odds_cap_sightings`` sightings' worth,
-   so a copy that a newer landmark has replaced goes after a few dozen misses.
+   so a copy that a newer landmark has replaced goes after a few dozen misses. A confirmed landmark that
+   goes passes its identity to the nearest landmark made after it, within ``inherit_radius``
+   (:func:`retire_landmarks`): usually the copy that replaced it, started when the pose had drifted, so that
+   the particle's association history reads one landmark, not two.
 4. **Confirmation**: sightings of one landmark a fraction of a second apart are not
    independent (``measurement_correlation_s``, :math:`\\tau`): a landmark counts the
    evidence :math:`\\sum\\beta`, :math:`\\beta = \\min(1, \\Delta t/\\tau)`, and is *provisional*
@@ -139,6 +142,9 @@ class AssociationParams(Params):
         such a landmark is not checked by negative evidence until the robot comes within ``max_range`` of it.
     log_odds_cap_sightings : float
         The existence log odds are clamped at this many sightings' worth (:func:`existence_log_odds`).
+    inherit_radius : float
+        A confirmed landmark retired by negative evidence passes its identity to the nearest landmark made
+        after it, within this distance [m] (:func:`retire_landmarks`; 0: no heir).
     """
 
     filter: FastSLAMParams = field(default_factory=FastSLAMParams)
@@ -160,6 +166,7 @@ class AssociationParams(Params):
     proposal_min_count: int = 2
     new_max_range: float = 10.0
     log_odds_cap_sightings: float = 5.0
+    inherit_radius: float = 1.0
 
     def __post_init__(self):
         if not isinstance(self.filter, FastSLAMParams):
@@ -193,7 +200,8 @@ class AssociationParams(Params):
                      float(self.drift_xy), float(self.drift_theta), float(self.association_range_scale),
                      float(self.drift_cap_s), int(self.proposal_min_count),
                      float(self.new_max_range),
-                     float(self.log_odds_cap_sightings) * math.log(self.detection_probability / self.clutter_probability))
+                     float(self.log_odds_cap_sightings) * math.log(self.detection_probability / self.clutter_probability),
+                     float(self.inherit_radius))
 
 
 class MapParticles(NamedTuple):
@@ -202,7 +210,7 @@ class MapParticles(NamedTuple):
     poses (M, 3); mu (M, Kmax, 2); sigma (M, Kmax, 2, 2); n (M,) landmarks held;
     ident (M, Kmax) identity of each landmark; seen, missed (M, Kmax) counts; evidence (M, Kmax): the
     sightings counted as independent, :math:`\\sum\\beta` (:func:`associate_particle`);
-    last_t (M, Kmax) time of the last sighting [s]; logw (M,).
+    last_t, first_t (M, Kmax) times of the last and the first sighting [s]; logw (M,).
     """
 
     poses: np.ndarray
@@ -215,6 +223,7 @@ class MapParticles(NamedTuple):
     evidence: np.ndarray
     log_odds: np.ndarray
     last_t: np.ndarray
+    first_t: np.ndarray
     logw: np.ndarray
 
 
@@ -227,7 +236,7 @@ def initial_particles(n_particles: int, max_landmarks: int, x0) -> MapParticles:
     return MapParticles(np.tile(x0, (M, 1)), np.zeros((M, K, 2)), np.tile(np.eye(2), (M, K, 1, 1)),
                         np.zeros(M, dtype=np.int64), np.full((M, K), -1, dtype=np.int64),
                         np.zeros((M, K), dtype=np.int64), np.zeros((M, K), dtype=np.int64),
-                        np.zeros((M, K)), np.zeros((M, K)), np.zeros((M, K)), np.zeros(M))
+                        np.zeros((M, K)), np.zeros((M, K)), np.zeros((M, K)), np.zeros((M, K)), np.zeros(M))
 
 
 class Rules(NamedTuple):
@@ -251,6 +260,7 @@ class Rules(NamedTuple):
     min_count: int
     new_max_range: float
     log_odds_cap: float
+    inherit_radius: float
 
 
 # ---------------------------------------------------------------- one particle, one sighting
@@ -375,6 +385,7 @@ def add_landmark(P, m, z, R, ident, t):
     P.missed[m, k] = 0
     P.evidence[m, k] = 1.0
     P.last_t[m, k] = t
+    P.first_t[m, k] = t
     P.n[m] = k + 1
     return k
 
@@ -392,6 +403,7 @@ def remove_landmark(P, m, k):
         P.evidence[m, k] = P.evidence[m, last]
         P.log_odds[m, k] = P.log_odds[m, last]
         P.last_t[m, k] = P.last_t[m, last]
+        P.first_t[m, k] = P.first_t[m, last]
     P.ident[m, last] = -1
     P.n[m] = last
 
@@ -419,18 +431,60 @@ def existence_log_odds(log_odds, seen, rules):
 
 @njit(cache=True)
 def negative_evidence(P, m, taken, rules):
-    """Count a miss for every landmark of particle ``m`` in view but not taken at this instant; remove those
-    whose existence log odds (:func:`existence_log_odds`) fall below zero: more likely clutter than real."""
+    """Count a miss for every landmark of particle ``m`` in view but not taken at this instant; remove the
+    provisional ones whose existence log odds (:func:`existence_log_odds`) fall below zero: more likely clutter than
+    real. A confirmed landmark whose log odds fall below zero is retired by :func:`retire_landmarks`."""
     k = 0
     while k < P.n[m]:
         if not taken[k] and in_view(P.poses[m], P.mu[m, k], rules):
             P.missed[m, k] += 1
             P.log_odds[m, k] = existence_log_odds(P.log_odds[m, k], False, rules)
-            if P.log_odds[m, k] < 0.0:
+            if P.log_odds[m, k] < 0.0 and P.evidence[m, k] < rules.n_confirm:
                 taken[k] = taken[P.n[m] - 1]  # the last landmark moves into slot k
                 remove_landmark(P, m, k)
                 continue
         k += 1
+
+
+@njit(cache=True)
+def heir_of(P, m, a, rules):
+    """The landmark of particle ``m`` that continues the identity of landmark ``a``: the nearest one made after
+    ``a``, within ``rules.inherit_radius`` metres; -1 if there is none."""
+    best, best_d = -1, rules.inherit_radius
+    for b in range(P.n[m]):
+        if b == a or P.first_t[m, b] <= P.first_t[m, a]:
+            continue  # older than a: another landmark
+        d = math.hypot(P.mu[m, a, 0] - P.mu[m, b, 0], P.mu[m, a, 1] - P.mu[m, b, 1])
+        if d <= best_d:
+            best, best_d = b, d
+    return best
+
+
+@njit(cache=True)
+def retire_landmarks(P, m, rules, renames, q):
+    """Remove the confirmed landmarks of particle ``m`` whose existence log odds fell below zero; each passes
+    its identity to its heir (:func:`heir_of`), if it has one.
+
+    A landmark stops being seen where the particle expects it when its pose drifted while the landmark was out of
+    view: the sightings, further than :math:`d_0` from it, start a copy nearby, which takes them, and the
+    original collects misses. The copy is the same landmark seen again: it continues the original's identity
+    (and counts its sightings), so that the particle's association history reads one landmark, not two. It keeps
+    its own evidence: a copy still provisional stays out of the map until its own sightings confirm it. Each hand-over is written to ``renames`` (C, 4) as ``(q, m, the heir's old identity, the identity it
+    takes)``; ``renames[0, 0]`` counts the rows, from row 1 (:func:`best_history` reads them).
+    """
+    k = 0
+    while k < P.n[m]:
+        if P.log_odds[m, k] >= 0.0:
+            k += 1
+            continue
+        b = heir_of(P, m, k, rules)
+        if b >= 0:
+            row = renames[0, 0] + 1
+            renames[row, 0], renames[row, 1], renames[row, 2], renames[row, 3] = q, m, P.ident[m, b], P.ident[m, k]
+            renames[0, 0] = row
+            P.ident[m, b] = P.ident[m, k]
+            P.seen[m, b] += P.seen[m, k]
+        remove_landmark(P, m, k)
 
 
 @njit(cache=True)
@@ -533,6 +587,7 @@ def select_maps(P, idx):
     P.evidence[:] = P.evidence[idx]
     P.log_odds[:] = P.log_odds[idx]
     P.last_t[:] = P.last_t[idx]
+    P.first_t[:] = P.first_t[idx]
     P.logw[:] = 0.0
 
 
@@ -543,7 +598,8 @@ class AssociationRecord(NamedTuple):
     """What :func:`run_unknown_segments` writes: ``w`` (M,) weights; ``pose_mean``, ``pose_best`` (N, 3);
     ``assoc`` (M, n): the identity each particle gave each sighting; ``parents`` (I, M): after instant ``q``,
     particle ``m`` descends from ``parents[q, m]``; ``instant_of`` (n,): the instant of each sighting;
-    ``next_ident`` (1,); ``totals`` (3,): measurement instants, resamples, landmarks created."""
+    ``next_ident`` (1,); ``totals`` (3,): measurement instants, resamples, landmarks created; ``renames`` (C, 4):
+    the identities handed over (:func:`retire_landmarks`; ``renames[0, 0]`` rows from row 1)."""
 
     w: np.ndarray
     pose_mean: np.ndarray
@@ -553,6 +609,7 @@ class AssociationRecord(NamedTuple):
     instant_of: np.ndarray
     next_ident: np.ndarray
     totals: np.ndarray
+    renames: np.ndarray
 
 
 @njit(cache=True)
@@ -568,6 +625,8 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out):
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
         a, b = L.offsets[last], L.offsets[last + 1]
+        if out.renames[0, 0] + M * P.mu.shape[1] >= out.renames.shape[0]:
+            return r  # the record of hand-overs could fill up at this instant: the caller makes it larger, and on
         measured = b > a
         n_record = last - first + (0 if measured else 1)
         x_start = P.poses.copy() if s.proposal == 1 else P.poses[:0].copy()
@@ -589,6 +648,8 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out):
             cloud = pose_covariance(P.poses, w) * rules.pose_scale
             for m in range(M):
                 associate_particle(P, m, instant, rules, out.next_ident, out.assoc[m, a:b], cloud)
+        for m in range(M):
+            retire_landmarks(P, m, rules, out.renames, out.totals[0])
         out.totals[2] += out.next_ident[0] - before
         out.instant_of[a:b] = q
         n_eff = normalise_weights(P.logw, w)
@@ -603,18 +664,35 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out):
         out.totals[0] += 1
         weighted_mean_pose(P.poses, w, out.pose_mean[last])
         out.pose_best[last] = P.poses[np.argmax(w)]
+    return segments.shape[0]
 
 
-def best_history(assoc: np.ndarray, parents: np.ndarray, instant_of: np.ndarray, m: int) -> np.ndarray:
-    """The association history of final particle ``m``: the identity its ancestors gave each sighting (n,)."""
+def best_history(assoc: np.ndarray, parents: np.ndarray, instant_of: np.ndarray, m: int,
+                 renames: np.ndarray | None = None) -> np.ndarray:
+    """The association history of final particle ``m``: the identity its ancestors gave each sighting (n,).
+
+    ``renames`` (C, 4) (:func:`retire_landmarks`): an identity that one of its ancestors handed over is read as the
+    identity it took, for the sightings before and after."""
     out = np.full(assoc.shape[1], -1, dtype=np.int64)
     order = np.argsort(instant_of, kind="stable")
     bounds = np.searchsorted(instant_of[order], np.arange(parents.shape[0] + 1))
+    ancestor = np.empty(parents.shape[0], dtype=np.int64)
     for q in range(parents.shape[0] - 1, -1, -1):
         m = int(parents[q, m])
+        ancestor[q] = m
         rows = order[bounds[q]:bounds[q + 1]]
         out[rows] = assoc[m, rows]
-    return out
+    if renames is None or renames[0, 0] == 0:
+        return out
+    rows = renames[1:renames[0, 0] + 1]
+    ours = rows[ancestor[rows[:, 0]] == rows[:, 1]]
+    taken = dict(zip(ours[:, 2].tolist(), ours[:, 3].tolist()))
+    for old in list(taken):  # a chain a -> b -> c ends at c (an identity is only ever handed to a newer landmark)
+        new = taken[old]
+        while new in taken:
+            new = taken[new]
+        taken[old] = new
+    return np.array([taken.get(i, i) for i in out.tolist()], dtype=np.int64)
 
 
 @dataclass
@@ -673,10 +751,17 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
                         1 if fp.proposal == "fastslam2" else 0)
     out = AssociationRecord(np.full(M, 1.0 / M), np.empty((N, 3)), np.empty((N, 3)), np.full((M, n), -1, dtype=np.int64),
                             np.empty((n_instants, M), dtype=np.int64), np.zeros(n, dtype=np.int64),
-                            np.zeros(1, dtype=np.int64), np.zeros(3, dtype=np.int64))
+                            np.zeros(1, dtype=np.int64), np.zeros(3, dtype=np.int64),
+                            np.zeros((4 * M * params.max_landmarks + 1, 4), dtype=np.int64))
     segments = np.array(list(_segments(stream)), dtype=np.int64).reshape(-1, 2)
     t0 = time.perf_counter()
-    run_unknown_segments(P, log, settings, rules, segments, rng, out)
+    done = 0
+    while done < len(segments):
+        done += run_unknown_segments(P, log, settings, rules, segments[done:], rng, out)
+        if done < len(segments):  # the record of hand-overs is full: twice the room, and on
+            grown = np.zeros((2 * len(out.renames), 4), dtype=np.int64)
+            grown[:len(out.renames)] = out.renames
+            out = out._replace(renames=grown)
     w, pose_mean, pose_best, totals = out.w, out.pose_mean, out.pose_best, out.totals
     assoc, parents, instant_of = out.assoc, out.parents, out.instant_of
     seconds = time.perf_counter() - t0
@@ -687,12 +772,13 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
         t=np.asarray(stream.t, dtype=float), pose_mean=pose_mean, pose_best=pose_best,
         landmarks=P.mu[best, keep].copy(), landmarks_cov=P.sigma[best, keep].copy(),
         landmark_ident=P.ident[best, keep].copy(), landmark_seen=P.seen[best, keep].copy(),
-        history=best_history(assoc, parents, instant_of, best), n_provisional=int(len(k) - len(keep)),
+        history=best_history(assoc, parents, instant_of, best, out.renames), n_provisional=int(len(k) - len(keep)),
         landmarks_created=int(totals[2]), n_resamples=int(totals[1]), filter_seconds=seconds, particles=P,
         params=params)
 
 
 __all__ = ["AssociationParams", "AssociationResult", "MapParticles", "Rules", "initial_particles",
            "new_landmark_loglik", "best_landmark", "choose_landmarks", "add_landmark", "remove_landmark",
-           "in_view", "existence_log_odds", "negative_evidence", "associate_particle", "select_maps",
+           "in_view", "existence_log_odds", "negative_evidence", "heir_of", "retire_landmarks", "associate_particle",
+           "select_maps",
            "AssociationRecord", "run_unknown_segments", "best_history", "run_unknown"]
