@@ -260,6 +260,11 @@ def test_matching_and_accuracy_on_a_constructed_case():
     history = np.array([12, 12, 11, 13, 14, 99, -1, 11])
     true = np.array([0, 0, 1, 1, 2, 2, -1, -1])  # the last two are clutter: not scored
     assert score.association_accuracy(history, true, ident, match) == pytest.approx(4 / 6)
+    # of the six landmark sightings: four right, 13 is spurious (wrong), 99 is no longer in the map
+    parts = score.association_breakdown(history, true, ident, match)
+    assert parts == pytest.approx({"correct": 4 / 6, "wrong": 1 / 6, "not_in_map": 1 / 6, "unassigned": 0.0})
+    parts = score.association_breakdown([12, -1, 11], [0, 1, 2], ident, match)
+    assert parts == pytest.approx({"correct": 1 / 3, "wrong": 1 / 3, "not_in_map": 0.0, "unassigned": 1 / 3})
 
 
 def test_matching_starts_from_the_path_alignment():
@@ -396,6 +401,8 @@ def test_cli_unknown_correspondences(sim_folder, tmp_path, capsys):
     assert s["correspondences"] == "unknown" and s["sightings"] == s["landmark_sightings"] + s["clutter_sightings"]
     assert 0.0 <= s["association_accuracy"] <= 1.0 and 0.0 <= s["association_accuracy_oracle"] <= 1.0
     assert s["association_accuracy_oracle"] > 0.9
+    parts = s["association_breakdown"]
+    assert parts["correct"] == s["association_accuracy"] and sum(parts.values()) == pytest.approx(1.0)
     ekf = tmp_path / "e.json"
     code = main(["run", "--data", str(sim_folder), "--robot", "1", "--filter", "ekf", "--correspondences", "unknown",
                  "--quiet", "--json", str(ekf), "--plot", str(tmp_path / "e.png")])

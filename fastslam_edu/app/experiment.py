@@ -362,6 +362,7 @@ def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLo
         "landmark_sightings": int(np.sum(true_index >= 0)),
         "clutter_sightings": int(np.sum(true_index < 0)),
         "association_accuracy": score.association_accuracy(result.history, true_index, result.landmark_ident, match),
+        "association_breakdown": score.association_breakdown(result.history, true_index, result.landmark_ident, match),
         "association_accuracy_oracle": None,
         "landmarks_in_map": score.landmarks_in_map(result.landmarks),
         "landmarks_spurious": int(np.sum(match < 0)),

@@ -16,6 +16,8 @@ sees a barcode; the barcodes only score it:
 * :func:`association_accuracy_ceiling`: the same at a filter's own path against its own final map (with
   known correspondences): the best an association decided in the filter's frame can do with the map
   the filter can build;
+* :func:`association_breakdown`: where the landmark sightings went (correct, to a wrong map landmark, to
+  an identity no longer in the map, to none);
 * :func:`landmarks_in_map` and :func:`landmarks_spurious` (map landmarks matched to no surveyed one).
 """
 
@@ -141,6 +143,27 @@ def oracle_association(poses, z, R, landmarks) -> np.ndarray:
     return mapped[np.argmin(d2, axis=1)].astype(np.int64)  # one R per sighting: the likelihood falls with d²
 
 
+def association_breakdown(history, true_index, map_ident, map_match) -> dict:
+    """Where the landmark sightings went, as fractions that add up to one: ``correct`` (the map landmark matched to
+    the sighting's true subject: :func:`association_accuracy`), ``wrong`` (a map landmark matched to another surveyed
+    landmark, or to none: a spurious one), ``not_in_map`` (an identity the final map no longer holds: a landmark
+    later removed, or still provisional) and ``unassigned`` (no landmark). Arguments as for
+    :func:`association_accuracy`; NaN everywhere if there is no landmark sighting."""
+    history = np.asarray(history, dtype=np.int64)
+    true_index = np.asarray(true_index, dtype=np.int64)
+    scored = true_index >= 0
+    keys = ("correct", "wrong", "not_in_map", "unassigned")
+    if not scored.any():
+        return dict.fromkeys(keys, float("nan"))
+    h, j = history[scored], true_index[scored]
+    truth_of = dict(zip(np.asarray(map_ident).tolist(), np.asarray(map_match).tolist()))
+    in_map = np.array([i in truth_of for i in h.tolist()], dtype=bool)
+    assigned = np.array([truth_of.get(i, -1) for i in h.tolist()], dtype=np.int64)
+    correct = in_map & (assigned == j) & (assigned >= 0)
+    return {"correct": float(np.mean(correct)), "wrong": float(np.mean(in_map & ~correct)),
+            "not_in_map": float(np.mean(~in_map & (h >= 0))), "unassigned": float(np.mean(h < 0))}
+
+
 def association_accuracy_oracle(poses, z, R, landmarks, true_index) -> float:
     """The fraction of landmark sightings (``true_index >= 0``) that :func:`oracle_association` gets right."""
     true_index = np.asarray(true_index, dtype=np.int64)
@@ -195,5 +218,5 @@ def merged_and_split(table, share: float = 0.2) -> tuple[int, int]:
 
 
 __all__ = ["association_table", "in_survey_order", "merged_and_split", "MAX_MATCH_DISTANCE", "match_landmarks", "path_alignment",
-           "landmarks_in_map", "landmarks_spurious", "association_accuracy",
+           "landmarks_in_map", "landmarks_spurious", "association_accuracy", "association_breakdown",
            "oracle_association", "association_accuracy_oracle", "association_accuracy_ceiling"]
