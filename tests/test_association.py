@@ -19,7 +19,8 @@ from fastslam_edu.evaluation import association as score
 from fastslam_edu.evaluation.metrics import landmark_errors_aligned
 from fastslam_edu.landmark.association import (AssociationParams, associate_particle, best_history,
                                                 choose_landmarks, existence_log_odds, initial_particles,
-                                                new_landmark_loglik, retire_landmarks, run_unknown)
+                                                merge_copies, new_landmark_loglik, retire_landmarks, run_unknown,
+                                                seen_together)
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 
 #: The simulator's sensor (σ_r 5 cm, σ_φ 0.02 rad), told to the filter as it is.
@@ -368,6 +369,24 @@ def test_best_history_reads_the_hand_overs_of_its_ancestors():
     assert best_history(assoc, parents, instant_of, 1, renames).tolist() == [5, 5]
     assert best_history(assoc, parents, instant_of, 0, renames).tolist() == [5, 9]
     assert best_history(assoc, parents, instant_of, 1).tolist() == [5, 9]
+
+
+def test_final_copies_are_merged_unless_seen_together():
+    """In the final map, 11 and 13 stand 0.3 m apart and were never sighted in one instant: 13 is a copy, merged into
+    the older 11 (the product of the two Gaussians) and its sightings renamed; 12 stands as near to 11 but was seen
+    with it, so stays; 14 is 2 m away."""
+    landmarks = np.array([[0.0, 0.0], [0.0, 0.3], [0.3, 0.0], [2.0, 0.0]])
+    cov = np.array([np.eye(2) * 0.01, np.eye(2) * 0.01, np.eye(2) * 0.03, np.eye(2) * 0.01])
+    ident = np.array([11, 12, 13, 14])
+    history = np.array([11, 12, 13, 13, 14, -1])
+    instant_of = np.array([0, 0, 1, 2, 2, 2])
+    assert seen_together(history, instant_of) == {(11, 12), (13, 14)}
+    out, out_cov, out_ident, out_history = merge_copies(landmarks, cov, ident, history, instant_of, 0.5)
+    assert out_ident.tolist() == [11, 12, 14] and out_history.tolist() == [11, 12, 11, 11, 14, -1]
+    np.testing.assert_allclose(out[0], (0.075, 0.0))  # weights 3 : 1 by the inverse covariances
+    np.testing.assert_allclose(out_cov[0], np.eye(2) * 0.0075)
+    same = merge_copies(landmarks, cov, ident, history, instant_of, 0.0)
+    assert same[2].tolist() == [11, 12, 13, 14] and same[3].tolist() == history.tolist()
 
 
 def test_best_history_follows_the_ancestors():

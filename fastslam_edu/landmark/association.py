@@ -145,6 +145,9 @@ class AssociationParams(Params):
     inherit_radius : float
         A confirmed landmark retired by negative evidence passes its identity to the nearest landmark made
         after it, within this distance [m] (:func:`retire_landmarks`; 0: no heir).
+    merge_radius : float
+        In the final map, a landmark within this distance [m] of an older one never sighted in the same instant
+        is merged into it (:func:`merge_copies`; 0: none).
     """
 
     filter: FastSLAMParams = field(default_factory=FastSLAMParams)
@@ -167,6 +170,7 @@ class AssociationParams(Params):
     new_max_range: float = 10.0
     log_odds_cap_sightings: float = 5.0
     inherit_radius: float = 1.0
+    merge_radius: float = 0.5
 
     def __post_init__(self):
         if not isinstance(self.filter, FastSLAMParams):
@@ -695,6 +699,52 @@ def best_history(assoc: np.ndarray, parents: np.ndarray, instant_of: np.ndarray,
     return np.array([taken.get(i, i) for i in out.tolist()], dtype=np.int64)
 
 
+def seen_together(history: np.ndarray, instant_of: np.ndarray) -> set[tuple[int, int]]:
+    """The pairs of identities ``(a, b)``, ``a < b``, that ``history`` (n,) gives sightings of one instant
+    (``instant_of`` (n,)): two things the camera saw at once, so two landmarks."""
+    pairs: set[tuple[int, int]] = set()
+    given = history >= 0
+    order = np.argsort(instant_of[given], kind="stable")
+    h, q = history[given][order], instant_of[given][order]
+    for chunk in np.split(h, np.flatnonzero(np.diff(q)) + 1):
+        ids = sorted(set(chunk.tolist()))
+        pairs.update((a, b) for i, a in enumerate(ids) for b in ids[i + 1:])
+    return pairs
+
+
+def merge_copies(landmarks, cov, ident, history, instant_of, radius: float):
+    """The final map with its copies merged: ``(landmarks (L', 2), cov (L', 2, 2), ident (L',), history (n,))``.
+
+    A map landmark within ``radius`` metres of an older one (a smaller identity) that ``history`` never gives a
+    sighting of the same instant (:func:`seen_together`) is a copy of it, kept apart because the pose had
+    drifted between the two: the two Gaussians become one (information form,
+    :math:`\\Sigma = (\\Sigma_a^{-1} + \\Sigma_b^{-1})^{-1}`), under the older identity, which its sightings take in
+    the history. The nearest older landmark is taken first; ``radius`` 0 merges nothing.
+    """
+    landmarks, cov = np.array(landmarks, dtype=float), np.array(cov, dtype=float)
+    ident, history = np.array(ident, dtype=np.int64), np.array(history, dtype=np.int64)
+    if radius <= 0 or len(ident) < 2:
+        return landmarks, cov, ident, history
+    together = seen_together(history, np.asarray(instant_of))
+    alive = np.ones(len(ident), dtype=bool)
+    for b in np.argsort(ident):
+        d = np.linalg.norm(landmarks - landmarks[b], axis=1)
+        older = alive & (ident < ident[b]) & (d <= radius)
+        older &= np.array([(int(ident[a]), int(ident[b])) not in together for a in range(len(ident))])
+        if not older.any():
+            continue
+        a = int(np.flatnonzero(older)[np.argmin(d[older])])
+        info_a, info_b = np.linalg.inv(cov[a]), np.linalg.inv(cov[b])
+        cov[a] = np.linalg.inv(info_a + info_b)
+        landmarks[a] = cov[a] @ (info_a @ landmarks[a] + info_b @ landmarks[b])
+        ia, ib = int(ident[a]), int(ident[b])
+        partners = {j if i == ib else i for i, j in together if ib in (i, j)}
+        together |= {(min(ia, o), max(ia, o)) for o in partners if o != ia}  # what b was seen with, a now is
+        history[history == ident[b]] = ident[a]
+        alive[b] = False
+    return landmarks[alive], cov[alive], ident[alive], history
+
+
 @dataclass
 class AssociationResult:
     """What a run with unknown correspondences produces.
@@ -702,7 +752,8 @@ class AssociationResult:
     t, pose_mean, pose_best (N,), (N, 3): as FastSLAM's result. ``landmarks`` (L, 2), ``landmarks_cov``
     (L, 2, 2), ``landmark_ident`` (L,), ``landmark_seen`` (L,): the map of the highest-weight particle
     at the end, its confirmed landmarks only (evidence :math:`\\sum\\beta` of ``n_confirm`` sightings or
-    more). ``history`` (n,): the identity that particle (through its ancestors) gave each sighting of the stream (-1: none).
+    more), its copies merged (:func:`merge_copies`). ``history`` (n,): the identity that particle (through its
+    ancestors) gave each sighting of the stream (-1: none), read through the hand-overs and the merges.
     ``n_provisional``: its landmarks still provisional at the end. ``particles``: the final set.
     """
 
@@ -768,11 +819,14 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
     best = int(np.argmax(w))
     k = np.arange(P.n[best])
     keep = k[P.evidence[best, k] >= params.n_confirm]
+    history = best_history(assoc, parents, instant_of, best, out.renames)
+    landmarks, cov, ident, history = merge_copies(P.mu[best, keep], P.sigma[best, keep], P.ident[best, keep],
+                                                  history, instant_of, params.merge_radius)
+    seen = np.array([np.sum(history == i) for i in ident.tolist()], dtype=np.int64)
     return AssociationResult(
         t=np.asarray(stream.t, dtype=float), pose_mean=pose_mean, pose_best=pose_best,
-        landmarks=P.mu[best, keep].copy(), landmarks_cov=P.sigma[best, keep].copy(),
-        landmark_ident=P.ident[best, keep].copy(), landmark_seen=P.seen[best, keep].copy(),
-        history=best_history(assoc, parents, instant_of, best, out.renames), n_provisional=int(len(k) - len(keep)),
+        landmarks=landmarks, landmarks_cov=cov, landmark_ident=ident, landmark_seen=seen,
+        history=history, n_provisional=int(len(k) - len(keep)),
         landmarks_created=int(totals[2]), n_resamples=int(totals[1]), filter_seconds=seconds, particles=P,
         params=params)
 
@@ -781,4 +835,4 @@ __all__ = ["AssociationParams", "AssociationResult", "MapParticles", "Rules", "i
            "new_landmark_loglik", "best_landmark", "choose_landmarks", "add_landmark", "remove_landmark",
            "in_view", "existence_log_odds", "negative_evidence", "heir_of", "retire_landmarks", "associate_particle",
            "select_maps",
-           "AssociationRecord", "run_unknown_segments", "best_history", "run_unknown"]
+           "AssociationRecord", "run_unknown_segments", "best_history", "seen_together", "merge_copies", "run_unknown"]
