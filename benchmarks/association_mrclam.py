@@ -99,7 +99,8 @@ def main(argv=None) -> int:
         lo, hi = row["ratio_range"]
         print(f"{row['robot']:<6} {row['oracle']:>7.3f} {row['ceiling']:>6.3f} ({row['ceiling_to_oracle']:.2f}) "
               f"{row['accuracy']:>8.3f} {row['ratio_to_oracle']:>7.2f}{mark['ratio_to_oracle']} "
-              f"{f'({lo:.2f}-{hi:.2f})':>13} {row['not_in_map']:>5.2f} {row['landmarks_spurious']:>8.0f}{mark['landmarks_spurious']} "
+              f"{f'({lo:.2f}-{hi:.2f})':>13} {row['not_in_map']:>5.2f} "
+              f"{row['landmarks_spurious']:>8.0f}{mark['landmarks_spurious']} "
               f"{row['landmark_error_aligned_mean_m']:>11.2f}{mark['landmark_error_aligned_mean_m']}")
     print("* misses the target (ratio to the oracle >= 0.95, spurious <= 2, aligned landmark error <= 0.30 m); "
           "ceiling: own path and own map with known correspondences (its ratio to the oracle in brackets); "

@@ -202,9 +202,9 @@ class AssociationParams(Params):
                      math.log((1.0 - self.detection_probability) / (1.0 - self.clutter_probability)),
                      0.0 if tau is None else float(tau), float(self.pose_uncertainty), bool(self.provisional_as_new),
                      float(self.drift_xy), float(self.drift_theta), float(self.association_range_scale),
-                     float(self.drift_cap_s), int(self.proposal_min_count),
-                     float(self.new_max_range),
-                     float(self.log_odds_cap_sightings) * math.log(self.detection_probability / self.clutter_probability),
+                     float(self.drift_cap_s), int(self.proposal_min_count), float(self.new_max_range),
+                     float(self.log_odds_cap_sightings) * math.log(self.detection_probability
+                                                                   / self.clutter_probability),
                      float(self.inherit_radius))
 
 
@@ -473,8 +473,9 @@ def retire_landmarks(P, m, rules, renames, q):
     view: the sightings, further than :math:`d_0` from it, start a copy nearby, which takes them, and the
     original collects misses. The copy is the same landmark seen again: it continues the original's identity
     (and counts its sightings), so that the particle's association history reads one landmark, not two. It keeps
-    its own evidence: a copy still provisional stays out of the map until its own sightings confirm it. Each hand-over is written to ``renames`` (C, 4) as ``(q, m, the heir's old identity, the identity it
-    takes)``; ``renames[0, 0]`` counts the rows, from row 1 (:func:`best_history` reads them).
+    its own evidence: a copy still provisional stays out of the map until its own sightings confirm it. Each
+    hand-over is written to ``renames`` (C, 4) as ``(q, m, the heir's old identity, the identity it takes)``;
+    ``renames[0, 0]`` counts the rows, from row 1 (:func:`best_history` reads them).
     """
     k = 0
     while k < P.n[m]:
