@@ -64,20 +64,21 @@ def cluttered_stream(seed, duration=120.0):
 def test_clutter_simulation_accuracy_and_spurious_landmarks():
     """Another robot in view a tenth of the time: over three simulations (median, as on MR.CLAM) most landmark
     sightings still go to the right landmark and few landmarks are made up. With provisional landmarks weighing as
-    new ones (``provisional_as_new``), the tracked robot never reaches the map."""
+    new ones (``provisional_as_new``, the default), the tracked robot never reaches the map; weighing as table 13.1
+    (every landmark held), a few made-up landmarks do."""
     rows = []
     for seed in (0, 1, 2):
         data, stream, truth = cluttered_stream(seed)
         assert np.sum(truth < 0) > 100
-        for p in (SIM_PARAMS, SIM_PARAMS.replace(provisional_as_new=True)):
+        for p in (SIM_PARAMS.replace(provisional_as_new=False), SIM_PARAMS):
             r = run_unknown(stream, p, 0)
             match = score.match_landmarks(r.landmarks, data.landmark_positions)
             rows.append((p.provisional_as_new, score.association_accuracy(r.history, truth, r.landmark_ident, match),
                          int(np.sum(match < 0))))
-    default = np.array([(a, n) for flag, a, n in rows if not flag])
-    strict = np.array([(a, n) for flag, a, n in rows if flag])
-    assert np.median(default[:, 0]) > 0.8 and np.median(default[:, 1]) <= 4
-    assert np.median(strict[:, 0]) > 0.85 and strict[:, 1].max() <= 2
+    table_13_1 = np.array([(a, n) for flag, a, n in rows if not flag])
+    default = np.array([(a, n) for flag, a, n in rows if flag])
+    assert np.median(table_13_1[:, 0]) > 0.8 and np.median(table_13_1[:, 1]) <= 4
+    assert np.median(default[:, 0]) > 0.85 and default[:, 1].max() <= 2
 
 
 def test_known_truth_simulation_map_and_associations(sim_run):

@@ -125,7 +125,8 @@ class AssociationParams(Params):
         (0: each particle trusts its own pose, as table 13.1; 1: the set's spread).
     provisional_as_new : bool
         A sighting assigned to a provisional landmark weighs the particle with :math:`p_0`, as a
-        new landmark does (default False: every landmark the particle holds weighs it, as table 13.1).
+        new landmark does (default True: another robot followed for a few seconds does not select the
+        particles that follow it; False: every landmark the particle holds weighs it, as table 13.1).
     drift_xy, drift_theta : float
         Drift of the pose relative to a landmark per √s since it was last seen [m/√s, rad/√s], added
         to the association's innovation covariance (0, 0: table 13.1's :math:`Q`). Default: the motion
@@ -161,7 +162,7 @@ class AssociationParams(Params):
     detection_probability: float = 0.3
     clutter_probability: float = 0.05
     pose_uncertainty: float = 0.0
-    provisional_as_new: bool = False
+    provisional_as_new: bool = True
     drift_xy: float = 0.02
     drift_theta: float = 0.05
     association_range_scale: float = 1.0
