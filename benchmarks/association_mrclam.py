@@ -30,14 +30,12 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info, machine_line  # noqa: E402
 
-from fastslam_edu.app.experiment import anonymous_stream, run_mrclam, run_mrclam_unknown  # noqa: E402
+from fastslam_edu.app.experiment import (anonymous_stream, association_ceiling, run_mrclam,  # noqa: E402
+                                         run_mrclam_unknown)
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
-from fastslam_edu.evaluation.association import association_accuracy_ceiling  # noqa: E402
 from fastslam_edu.landmark.association import AssociationParams  # noqa: E402
 
 ROBOTS = [(1, 2), (6, 1), (6, 2), (6, 3), (6, 4), (6, 5)]  # named by the targets
@@ -50,10 +48,7 @@ def ceiling(dataset: int, robot: int, seed: int) -> float:
     path = mrclam_path(dataset)
     known, _, context = run_mrclam(path, robot, seed=seed)
     stream, true_index = anonymous_stream(path, robot, context["dataset"], context["log"], x0=context["stream"].x0)
-    landmarks = np.where(known.observed[:, None], known.landmarks_mean, np.nan)
-    step = np.searchsorted(stream.offsets, np.arange(len(true_index)), side="right") - 1
-    R = AssociationParams().filter.measurement_covariance(stream.z)
-    return association_accuracy_ceiling(known.t, known.pose_mean, stream.t[step], stream.z, R, landmarks, true_index)
+    return association_ceiling(known, stream, true_index, AssociationParams().filter)
 
 
 def _run(job) -> dict:

@@ -65,6 +65,7 @@ def test_full_rate_steps_hold_and_grouping():
     np.testing.assert_array_equal(s.landmark, [2, 1, 0, 0, 1])
     z, lm = s.measurements_at(2)
     np.testing.assert_array_equal(lm, [1, 0])
+    np.testing.assert_array_equal(s.sighting_steps, [0, 2, 2, 3, 5])  # steps 1 and 4 see nothing
     assert s.x0 is None  # no groundtruth
     np.testing.assert_array_equal(s.landmark_subjects, LANDMARKS)
 

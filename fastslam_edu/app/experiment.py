@@ -369,8 +369,7 @@ def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLo
         **_unknown_counts(result),
     }
     if log.groundtruth is not None:
-        step = np.searchsorted(stream.offsets, np.arange(len(true_index)), side="right") - 1
-        t = stream.t[step]
+        t = stream.t[stream.sighting_steps]
         gt = log.groundtruth["time"].to_numpy()
         inside = (t >= gt[0] - 0.5) & (t <= gt[-1] + 0.5)
         poses = np.full((len(t), 3), np.nan)
@@ -382,6 +381,18 @@ def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLo
     out.update(score_estimate(result.t, result.pose_mean, landmarks, observed, dataset.landmark_subjects,
                               dataset, log))
     return out
+
+
+def association_ceiling(known: FastSLAMResult, stream, true_index, params: FastSLAMParams = FastSLAMParams()) -> float:
+    """The association ceiling of a FastSLAM run with known correspondences, ``known``, on the anonymous ``stream``
+    of the same log (:func:`anonymous_stream`, with its ``true_index``): maximum-likelihood association with
+    ``params``' :math:`R` at the run's own mean path against its own final map (unobserved landmarks left out)
+    (:func:`fastslam_edu.evaluation.association.association_accuracy_ceiling`)."""
+    from fastslam_edu.evaluation.association import association_accuracy_ceiling
+
+    landmarks = np.where(known.observed[:, None], known.landmarks_mean, np.nan)
+    return association_accuracy_ceiling(known.t, known.pose_mean, stream.t[stream.sighting_steps], stream.z,
+                                        params.measurement_covariance(stream.z), landmarks, true_index)
 
 
 def run_mrclam_unknown(path, robot: int, params=None, seed: int = 0, *, rate: str = "full", x0=None,

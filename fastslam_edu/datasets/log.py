@@ -142,5 +142,10 @@ class EventStream:
         return int(self.offsets[-1])
 
     @property
+    def sighting_steps(self) -> np.ndarray:
+        """The step of each measurement (n,): measurement ``i`` is taken at time ``t[sighting_steps[i]]``."""
+        return np.repeat(np.arange(len(self.t)), np.diff(self.offsets))
+
+    @property
     def n_landmarks(self) -> int:
         return len(self.landmark_subjects)

@@ -114,14 +114,7 @@ def association_accuracy(history, true_index, map_ident, map_match) -> float:
     ``map_ident`` (L,): the identities of the map's landmarks; ``map_match`` (L,): the surveyed
     landmark each is matched to (-1: none, :func:`match_landmarks`). NaN if no landmark sighting.
     """
-    history = np.asarray(history, dtype=np.int64)
-    true_index = np.asarray(true_index, dtype=np.int64)
-    scored = true_index >= 0
-    if not scored.any():
-        return float("nan")
-    truth_of = dict(zip(np.asarray(map_ident).tolist(), np.asarray(map_match).tolist()))
-    assigned = np.array([truth_of.get(h, -1) for h in history[scored].tolist()], dtype=np.int64)
-    return float(np.mean((assigned == true_index[scored]) & (assigned >= 0)))
+    return association_breakdown(history, true_index, map_ident, map_match)["correct"]
 
 
 def oracle_association(poses, z, R, landmarks) -> np.ndarray:
