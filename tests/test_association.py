@@ -17,11 +17,12 @@ from fastslam_edu.datasets.mrclam import write_dataset
 from fastslam_edu.datasets.sim import simulate_dataset
 from fastslam_edu.evaluation import association as score
 from fastslam_edu.evaluation.metrics import landmark_errors_aligned
-from fastslam_edu.landmark.association import (AssociationParams, associate_particle, best_history,
-                                                choose_landmarks, existence_log_odds, initial_particles,
-                                                merge_copies, new_landmark_loglik, retire_landmarks, run_unknown,
+from fastslam_edu.landmark.association import (AssociationParams, associate_particle,
+                                                association_loglik, best_history, choose_landmarks,
+                                                existence_log_odds, initial_particles, joint_loglik, merge_copies,
+                                                new_landmark_loglik, pair_information, retire_landmarks, run_unknown,
                                                 seen_together)
-from fastslam_edu.landmark.fastslam import FastSLAMParams
+from fastslam_edu.landmark.fastslam import FastSLAMParams, Hook, run_fastslam
 
 #: The simulator's sensor (σ_r 5 cm, σ_φ 0.02 rad), told to the filter as it is.
 SIM_FILTER = FastSLAMParams(n_particles=30, measurement_cov=np.diag([0.05**2, 0.02**2]), range_std_slope=0.0)
@@ -210,6 +211,78 @@ def test_joint_assignment_most_likely_first():
     assert slot.tolist() == [1, 1]
 
 
+def test_joint_loglik_is_the_stacked_gaussian():
+    """joint_loglik's 3×3 form (Woodbury, determinant lemma) against scipy's log-density of the stacked innovations
+    with the full covariance blockdiag(D_i) + H P_c Hᵀ, for one to four sightings."""
+    from scipy.linalg import block_diag
+    from scipy.stats import multivariate_normal
+
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 4):
+        L = rng.normal(size=(3, 3))
+        Pc = L @ L.T * 0.01
+        D = [np.diag(rng.uniform(0.01, 0.2, 2)) + 0.005 for _ in range(n)]
+        H = rng.normal(size=(n, 2, 3))
+        nu = rng.normal(scale=0.2, size=(n, 2))
+        total = np.zeros(14)
+        for Di, Hi, vi in zip(D, H, nu):
+            Dinv = np.linalg.inv(Di)
+            total += np.concatenate([[vi @ Dinv @ vi], Hi.T @ Dinv @ vi, (Hi.T @ Dinv @ Hi).ravel(),
+                                     [np.log(np.linalg.det(Di))]])
+        Hs = H.reshape(2 * n, 3)
+        S = block_diag(*D) + Hs @ Pc @ Hs.T
+        expected = multivariate_normal(np.zeros(2 * n), S).logpdf(nu.ravel())
+        assert joint_loglik(total, n, Pc) == pytest.approx(expected, rel=1e-10)
+
+
+def test_one_pair_of_the_joint_form_is_the_single_decision():
+    """A single sighting scored by the joint form, with the common drift added back, has the log-likelihood it is
+    decided by alone (association_loglik): the two forms split one covariance, they do not change it."""
+    rules = RULES._replace(drift_xy=0.02, drift_theta=0.05, drift_cap_s=5.0)
+    P = one_particle([(3.0, 0.2), (2.0, -0.5)])
+    P.last_t[0, :2] = [0.5, 2.0]
+    t, z = 4.0, range_bearing(np.array([0.05, -0.02, 0.03]), np.array([[3.0, 0.2]]))
+    ll = np.zeros((1, 2))
+    for common in (0.0, 1.0, 2.0):
+        info = pair_information(P, 0, P.poses[0], (z, R[None], t), common, rules, ll)
+        Pc = np.diag([0.02**2 * common, 0.02**2 * common, 0.05**2 * common])
+        for k in range(2):
+            alone, _ = association_loglik(P.poses[0], z[0], R, P.mu[0, k], P.sigma[0, k], np.zeros((3, 3)),
+                                          t - P.last_t[0, k], rules)
+            assert joint_loglik(info[0, k], 1, Pc) == pytest.approx(alone, rel=1e-12)
+
+
+def test_joint_compatibility_undoes_a_common_rotation():
+    """Two landmarks 0.06 rad apart at 3 m, unseen for long; the robot has turned 0.05 rad more than the particle
+    believes, so each sighting lies nearer the other landmark's prediction than its own's shifted one. The greedy
+    pairing (most likely pair first) takes the nearest pair and swaps them; joint compatibility sees one rotation
+    shared by both sightings and keeps them apart."""
+    rules = RULES._replace(drift_xy=0.0, drift_theta=0.05, drift_cap_s=5.0)
+    landmarks = np.array([[3.0, 0.0], [3.0 * math.cos(0.06), 3.0 * math.sin(0.06)]])
+    z = range_bearing(np.array([0.0, 0.0, 0.05]), landmarks)
+    Rs = np.repeat(R[None], 2, axis=0)
+    P = one_particle(landmarks)
+    greedy, _ = choose_landmarks(P, 0, P.poses[0], z, Rs, np.zeros((3, 3)), 100.0, rules)
+    joint, ll = choose_landmarks(P, 0, P.poses[0], z, Rs, np.zeros((3, 3)), 100.0, rules._replace(joint=True))
+    assert greedy.tolist() == [1, 0]
+    assert joint.tolist() == [0, 1]
+    for i in range(2):  # each sighting keeps its own log-likelihood for the weight
+        alone, _ = association_loglik(P.poses[0], z[i], R, P.mu[0, i], P.sigma[0, i], np.zeros((3, 3)), 100.0, rules)
+        assert ll[i] == pytest.approx(alone)
+
+
+def test_joint_compatibility_a_far_sighting_is_new():
+    """A sighting that fits no landmark's gate is new under joint compatibility too, and a landmark is never given
+    two sightings of one instant."""
+    rules = RULES._replace(joint=True)
+    P = one_particle([(2.0, 0.0)])
+    out, _ = sight(P, [(2.0, 0.0), (2.0, 1.0)], rules)
+    assert out.tolist() == [100, 7] and P.n[0] == 2
+    P = one_particle([(2.0, 0.0)])
+    out, _ = sight(P, [(2.0, 0.0), (2.05, 0.02)], rules)
+    assert out[0] == 100 and out[1] == 7
+
+
 def test_confirmation_counts_independent_sightings():
     """With tempering (tau = 4 s), ten sightings 0.1 s apart add 0.25 of evidence: the landmark stays provisional;
     five sightings 4 s apart confirm it."""
@@ -319,6 +392,36 @@ def test_ceiling_at_the_filter_pose_and_map():
     unmapped = landmarks.copy()
     unmapped[2] = np.nan
     assert score.oracle_association(np.tile(poses[0], (4, 1)), z, Rs, unmapped).tolist() == [0, 1, 1, 3]
+
+
+def test_particles_right_counts_by_weight():
+    """Two particles decide one sighting of landmark 0 (of three 0.3 m apart at 3 m): the one at the true pose
+    gives it landmark 0, the one turned by 0.1 rad its neighbour; the right share is the first one's weight."""
+    landmarks = np.array([[3.0, 0.0], [3.0, 0.3], [3.0, -0.3]])
+    P = initial_particles(2, 3, [0.0, 0.0, 0.0])
+    P.poses[1, 2] = 0.1
+    P.mu[:] = landmarks
+    P.sigma[:] = np.eye(2) * 0.05**2
+    P.n[:] = 3
+    z = range_bearing(np.zeros(3), landmarks[:1])
+    right = score.particles_right(P, z, R[None], 1.0, np.array([0]), np.array([0.7, 0.3]), RULES)
+    assert right.tolist() == [pytest.approx(0.7)]
+
+
+def test_online_ceiling_on_the_simulation():
+    """The online ceiling inside FastSLAM with known correspondences on the simulation (landmarks metres apart):
+    nearly every sighting of a mapped landmark goes to its landmark; with a gate too narrow for any landmark
+    (d0² = 1e-6) none does. The probe changes nothing: the run equals a run with a hook that does nothing."""
+    data = simulate_dataset(0, duration=60.0)
+    stream = event_stream(data.robots[1], data.landmark_subjects)
+    probe, narrow = score.OnlineCeiling(SIM_PARAMS), score.OnlineCeiling(SIM_PARAMS.replace(new_landmark_chi2=1e-6))
+    with_probe = run_fastslam(stream, SIM_FILTER, 0, hooks=(probe, narrow))
+    plain = run_fastslam(stream, SIM_FILTER, 0, hooks=(Hook(),))
+    np.testing.assert_array_equal(with_probe.pose_mean, plain.pose_mean)
+    n_landmark = int(np.sum(stream.landmark >= 0))
+    assert probe.scored + probe.first_sightings == n_landmark and 0 < probe.first_sightings < 20
+    assert probe.accuracy > 0.95
+    assert narrow.accuracy < 0.05 and narrow.scored == probe.scored
 
 
 def test_fastslam2_proposal_with_unknown_correspondences(sim_run):
@@ -438,6 +541,14 @@ def test_cli_unknown_correspondences(sim_folder, tmp_path, capsys):
     assert main(["run", "--data", str(sim_folder), "--robot", "1", "--particles", "20", "--quiet", "--correspondences",
                  "unknown", "--proposal", "fastslam2", "--json", str(two)]) == 0
     assert json.loads(two.read_text())["params"]["filter"]["proposal"] == "fastslam2"
+    joint = tmp_path / "joint.json"
+    assert main(["run", "--data", str(sim_folder), "--robot", "1", "--particles", "20", "--quiet", "--correspondences",
+                 "unknown", "--joint-compatibility", "--json", str(joint)]) == 0
+    assert json.loads(joint.read_text())["params"]["joint_compatibility"] is True
+    for refused in (["--filter", "ekf", "--correspondences", "unknown"], []):  # EKF-SLAM's, or known barcodes
+        assert main(["run", "--data", str(sim_folder), "--robot", "1", "--quiet", "--joint-compatibility",
+                     *refused]) != 0
+        assert "--joint-compatibility" in capsys.readouterr().err
 
 
 def test_association_table_counts_merged_and_split():
@@ -461,17 +572,18 @@ assert not hasattr(association.choose_landmarks, "py_func"), "numba compiled: NU
 data = simulate_dataset(2, duration=20.0)
 stream = event_stream(data.robots[1], data.landmark_subjects)
 out = {{}}
-for proposal in ("motion", "fastslam2"):
-    p = SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal))
+for proposal, joint in (("motion", False), ("fastslam2", False), ("motion", True)):
+    p = SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal), joint_compatibility=joint)
     r = association.run_unknown(stream, p, 3)
-    out[proposal + "_history"], out[proposal + "_pose"] = r.history, r.pose_mean
+    name = proposal + ("_joint" if joint else "")
+    out[name + "_history"], out[name + "_pose"] = r.history, r.pose_mean
 np.savez({out!r}, **out)
 """
 
 
 def test_unknown_correspondences_run_as_plain_python_with_the_same_numbers(tmp_path):
     """NUMBA_DISABLE_JIT=1 (a fresh interpreter): the association kernels run as Python, FastSLAM 1.0 and 2.0, and
-    give the compiled run's associations and poses."""
+    1.0 with joint compatibility, and give the compiled run's associations and poses."""
     import os
     import subprocess
     import sys
@@ -483,7 +595,9 @@ def test_unknown_correspondences_run_as_plain_python_with_the_same_numbers(tmp_p
     plain = np.load(out)
     data = simulate_dataset(2, duration=20.0)
     stream = event_stream(data.robots[1], data.landmark_subjects)
-    for proposal in ("motion", "fastslam2"):
-        r = run_unknown(stream, SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal)), 3)
-        np.testing.assert_array_equal(plain[proposal + "_history"], r.history)
-        np.testing.assert_allclose(plain[proposal + "_pose"], r.pose_mean, rtol=0, atol=1e-9)
+    for proposal, joint in (("motion", False), ("fastslam2", False), ("motion", True)):
+        p = SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal), joint_compatibility=joint)
+        r = run_unknown(stream, p, 3)
+        name = proposal + ("_joint" if joint else "")
+        np.testing.assert_array_equal(plain[name + "_history"], r.history)
+        np.testing.assert_allclose(plain[name + "_pose"], r.pose_mean, rtol=0, atol=1e-9)

@@ -68,6 +68,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "per particle (fastslam_edu.landmark.association), EKF-SLAM by nearest neighbour (--filter "
                           "ekf), every sighting given without its barcode (other robots and misread barcodes "
                           "included); the barcodes only score the associations")
+    run.add_argument("--joint-compatibility", action="store_true",
+                     help="with --correspondences unknown: FastSLAM decides the sightings of each instant jointly, "
+                          "their innovations correlated by the pose error they share (AssociationParams."
+                          "joint_compatibility)")
     run.add_argument("--mode", choices=MODES, default="slam")
     run.add_argument("--proposal", choices=PROPOSALS, default="motion",
                      help="motion: FastSLAM 1.0 (default); fastslam2: FastSLAM 2.0's proposal")
@@ -172,7 +176,8 @@ def _check_ekf_options(args) -> None:
     given = [name for name, used in (("--particles", args.particles is not None),
                                      ("--resampler", args.resampler is not None),
                                      ("--proposal", args.proposal != "motion"), ("--mode", args.mode != "slam"),
-                                     ("--smooth", args.smooth)) if used]
+                                     ("--smooth", args.smooth), ("--joint-compatibility", args.joint_compatibility))
+             if used]
     if given:
         raise ValueError(f"{', '.join(given)}: FastSLAM's option(s), not EKF-SLAM's (--filter ekf)")
 
@@ -246,7 +251,8 @@ def cmd_run_unknown(args) -> int:
     defaults = AssociationParams()
     f = defaults.filter
     params = defaults.replace(filter=f.replace(n_particles=f.n_particles if args.particles is None else args.particles,
-                                               resampler=args.resampler or f.resampler, proposal=args.proposal))
+                                               resampler=args.resampler or f.resampler, proposal=args.proposal),
+                              joint_compatibility=args.joint_compatibility)
     result, summary, ctx = run_mrclam_unknown(args.data, args.robot, params, args.seed, rate=args.rate, x0=args.x0,
                                               groundtruth_file=args.groundtruth, audit=not args.no_audit)
     summary["filter"] = "fastslam"
@@ -293,6 +299,8 @@ def cmd_run(args) -> int:
         return cmd_run_ekf(args)
     if args.correspondences == "unknown":
         return cmd_run_unknown(args)
+    if args.joint_compatibility:
+        raise ValueError("--joint-compatibility decides associations: it needs --correspondences unknown")
     if args.smooth and args.mode != "slam":
         raise ValueError(f"--smooth solves full SLAM; it does not apply to --mode {args.mode}")
     defaults = FastSLAMParams()

@@ -16,6 +16,10 @@ sees a barcode; the barcodes only score it:
 * :func:`association_accuracy_ceiling`: the same at a filter's own path against its own final map (with
   known correspondences): the best an association decided in the filter's frame can do with the map
   the filter can build;
+* :class:`OnlineCeiling`: the same rule the filter without barcodes decides by
+  (:func:`fastslam_edu.landmark.association.choose_landmarks`), applied by every particle of FastSLAM run *with*
+  known correspondences at each instant, before its update: the accuracy a particle reaches while its pose and
+  map are those of a filter that never associated wrongly;
 * :func:`association_breakdown`: where the landmark sightings went (correct, to a wrong map landmark, to
   an identity no longer in the map, to none);
 * :func:`landmarks_in_map` and :func:`landmarks_spurious` (map landmarks matched to no surveyed one).
@@ -24,10 +28,13 @@ sees a barcode; the barcodes only score it:
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.optimize import linear_sum_assignment
 
 from fastslam_edu.core.measurement import innovation, range_bearing
 from fastslam_edu.evaluation.metrics import align_se2, apply_se2
+from fastslam_edu.landmark.association import AssociationParams, MapParticles, choose_landmarks
+from fastslam_edu.landmark.fastslam import FilterRun, Hook
 
 #: Map landmarks further than this from every surveyed landmark they could be matched to are spurious [m].
 MAX_MATCH_DISTANCE = 1.0
@@ -182,6 +189,74 @@ def association_accuracy_ceiling(t, poses, sighting_t, z, R, landmarks, true_ind
     return association_accuracy_oracle(np.asarray(poses, dtype=float)[k], z, R, landmarks, true_index)
 
 
+@njit(cache=True)
+def particles_right(P, z, R, t, truth, w, rules):
+    """For each sighting ``z`` (n, 2) of one instant at time ``t``, the weight ``w`` (M,) of the particles of ``P``
+    (:class:`~fastslam_edu.landmark.association.MapParticles`) whose association
+    (:func:`~fastslam_edu.landmark.association.choose_landmarks`, with ``rules``) gives it its true landmark
+    ``truth`` (n,) (a slot of ``P``): (n,)."""
+    right = np.zeros(z.shape[0])
+    for m in range(P.poses.shape[0]):
+        slot, _ = choose_landmarks(P, m, P.poses[m], z, R, np.zeros((3, 3)), t, rules)
+        for i in range(z.shape[0]):
+            if slot[i] == truth[i]:
+                right[i] += w[m]
+    return right
+
+
+class OnlineCeiling(Hook):
+    """What the association of the filter without barcodes would get right, decided inside FastSLAM run *with*
+    known correspondences: a :class:`~fastslam_edu.landmark.fastslam.Hook` for
+    :func:`~fastslam_edu.landmark.fastslam.run_fastslam` (``hooks=(probe,)``) that changes nothing.
+
+    At each measurement instant, after the motion and before the update, every particle decides the instant's
+    sightings by :func:`~fastslam_edu.landmark.association.choose_landmarks` (maximum likelihood with the drift
+    term and the gate :math:`d_0`, mutual exclusion: the rule and settings of ``params``) against the landmarks it
+    has mapped so far; a sighting counts as right, for that particle, when it goes to its true landmark, and the
+    particles count by their weights. Sightings of a landmark no particle has mapped yet (a first sighting: any
+    association makes it new) are not scored.
+
+    The pose and map each particle decides from are those of a filter that never associated wrongly: the accuracy
+    is what a particle of the filter without barcodes reaches while it has made no mistake, before any mistake
+    compounds. ``accuracy`` (after the run): the weighted fraction over the scored sightings; ``scored``: their
+    number; ``first_sightings``: those left out.
+    """
+
+    def __init__(self, params: AssociationParams = AssociationParams()):
+        self.rules = params.rules()
+        self.right = 0.0
+        self.scored = 0
+        self.first_sightings = 0
+
+    @property
+    def accuracy(self) -> float:
+        return self.right / self.scored if self.scored else float("nan")
+
+    def after_motion(self, run: FilterRun, s: int, e: int) -> None:
+        stream = run.stream
+        a, b = int(stream.offsets[e]), int(stream.offsets[e + 1])
+        if b <= a:
+            return
+        parts = run.particles
+        M, K = parts.seen.shape
+        truth = np.asarray(stream.landmark[a:b], dtype=np.int64)
+        mapped = parts.seen[:, truth].any(axis=0)
+        self.first_sightings += int(np.sum(~mapped))
+        if not mapped.any():
+            return
+        mu = np.where(parts.seen[..., None], parts.mu, np.nan)  # a landmark a particle has not mapped: never chosen
+        last_t = np.broadcast_to(run.last_seen, (M, K)).copy()
+        P = MapParticles(parts.poses.copy(), mu, parts.sigma.copy(), np.full(M, K, dtype=np.int64),
+                         np.tile(np.arange(K), (M, 1)), np.ones((M, K), dtype=np.int64), np.zeros((M, K), dtype=np.int64),
+                         np.full((M, K), float(self.rules.n_confirm)), np.zeros((M, K)), last_t, last_t.copy(),
+                         np.zeros(M))
+        w = np.asarray(run.w, dtype=float)
+        right = particles_right(P, np.ascontiguousarray(stream.z[a:b], dtype=float),
+                                np.ascontiguousarray(run.R[a:b]), float(stream.t[e]), truth, w / w.sum(), self.rules)
+        self.right += float(right[mapped].sum())
+        self.scored += int(mapped.sum())
+
+
 def association_table(history, true_index, map_ident, n_landmarks: int) -> np.ndarray:
     """Counts (L, K + 1): how many sightings of surveyed landmark ``j`` (column ``j``; the last column: clutter)
     went to map landmark ``l`` (row, in the order of ``map_ident``). Sightings assigned to no map landmark
@@ -212,4 +287,5 @@ def merged_and_split(table, share: float = 0.2) -> tuple[int, int]:
 
 __all__ = ["association_table", "in_survey_order", "merged_and_split", "MAX_MATCH_DISTANCE", "match_landmarks", "path_alignment",
            "landmarks_in_map", "landmarks_spurious", "association_accuracy", "association_breakdown",
-           "oracle_association", "association_accuracy_oracle", "association_accuracy_ceiling"]
+           "oracle_association", "association_accuracy_oracle", "association_accuracy_ceiling",
+           "particles_right", "OnlineCeiling"]

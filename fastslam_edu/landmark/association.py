@@ -14,7 +14,10 @@ sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
    evidence checks them once they are within ``max_range``.
 2. **Mutual exclusion** (optional, ``exclusive``): within one camera frame two
    sightings are two different things. The pairs (sighting, landmark) of the instant
-   are taken most likely first, each sighting and each landmark once.
+   are taken most likely first, each sighting and each landmark once. **Joint
+   compatibility** (optional, ``joint_compatibility``, :func:`joint_slots`) decides
+   the instant as a whole instead: every hypothesis is scored by the joint Gaussian of
+   its innovations, correlated by the pose error the sightings share.
 3. **Negative evidence** (:func:`negative_evidence`): a landmark the particle
    expects to see (inside the camera's field of view and range) at an instant
    when something is seen, but which no sighting of that instant was assigned
@@ -149,6 +152,9 @@ class AssociationParams(Params):
     merge_radius : float
         In the final map, a landmark within this distance [m] of an older one never sighted in the same instant
         is merged into it (:func:`merge_copies`; 0: none).
+    joint_compatibility : bool
+        The sightings of one instant are associated jointly, their innovations correlated by the pose error they
+        share (:func:`joint_slots`), instead of one by one (``exclusive``'s greedy pairing, or each alone).
     """
 
     filter: FastSLAMParams = field(default_factory=FastSLAMParams)
@@ -172,6 +178,7 @@ class AssociationParams(Params):
     log_odds_cap_sightings: float = 5.0
     inherit_radius: float = 1.0
     merge_radius: float = 0.5
+    joint_compatibility: bool = False
 
     def __post_init__(self):
         if not isinstance(self.filter, FastSLAMParams):
@@ -206,7 +213,7 @@ class AssociationParams(Params):
                      float(self.drift_cap_s), int(self.proposal_min_count), float(self.new_max_range),
                      float(self.log_odds_cap_sightings) * math.log(self.detection_probability
                                                                    / self.clutter_probability),
-                     float(self.inherit_radius))
+                     float(self.inherit_radius), bool(self.joint_compatibility))
 
 
 class MapParticles(NamedTuple):
@@ -266,6 +273,7 @@ class Rules(NamedTuple):
     new_max_range: float
     log_odds_cap: float
     inherit_radius: float
+    joint: bool
 
 
 # ---------------------------------------------------------------- one particle, one sighting
@@ -279,14 +287,20 @@ def new_landmark_loglik(R, d0_sq):
 
 
 @njit(cache=True)
-def pose_term(pose, mx, my, cloud):
-    """:math:`H_x P H_x^\\top` (``a, b, d``: entries 00, 01, 11) for a landmark at ``(mx, my)``: the pose
-    covariance ``cloud`` (3, 3) of the particle set carried into measurement space."""
+def pose_jacobian(pose, mx, my):
+    """:math:`H_x = \\partial h/\\partial x` (2, 3) of the range and bearing of a landmark at ``(mx, my)``, as
+    ``(j0, j1, j2, k0, k1, k2)``: the range row, then the bearing row."""
     dx, dy = mx - pose[0], my - pose[1]
     q = dx * dx + dy * dy
     r = math.sqrt(q)
-    j0, j1, j2 = -dx / r, -dy / r, 0.0  # H_x = ∂h/∂x, rows r and φ
-    k0, k1, k2 = dy / q, -dx / q, -1.0
+    return -dx / r, -dy / r, 0.0, dy / q, -dx / q, -1.0
+
+
+@njit(cache=True)
+def pose_term(pose, mx, my, cloud):
+    """:math:`H_x P H_x^\\top` (``a, b, d``: entries 00, 01, 11) for a landmark at ``(mx, my)``: the pose
+    covariance ``cloud`` (3, 3) of the particle set carried into measurement space."""
+    j0, j1, j2, k0, k1, k2 = pose_jacobian(pose, mx, my)
     a = b = d = 0.0
     for u, cu, ku in ((0, j0, k0), (1, j1, k1), (2, j2, k2)):
         for v, cv, kv in ((0, j0, k0), (1, j1, k1), (2, j2, k2)):
@@ -297,23 +311,39 @@ def pose_term(pose, mx, my, cloud):
 
 
 @njit(cache=True)
+def drift_covariance(cloud, unseen_s, rules):
+    """:math:`P`: ``cloud`` (3, 3) plus the drift of the pose over ``unseen_s`` seconds,
+    :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\min(\\Delta t, T)`."""
+    P = cloud.copy()
+    unseen_s = min(unseen_s, rules.drift_cap_s)
+    P[0, 0] += rules.drift_xy ** 2 * unseen_s
+    P[1, 1] += rules.drift_xy ** 2 * unseen_s
+    P[2, 2] += rules.drift_theta ** 2 * unseen_s
+    return P
+
+
+@njit(cache=True)
+def innovation_with_pose(pose, z, R, mu, sigma, P, rules):
+    """The innovation of one sighting and landmark with the pose covariance ``P`` (3, 3) added:
+    ``(nu0, nu1, q00, q01, q11)``, :math:`\\nu` and :math:`Q + H_x P H_x^\\top` (its range variance scaled by
+    ``rules.range_scale`` squared)."""
+    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, ll = ekf_innovation(pose, z, R, mu, sigma)
+    a, b, d = pose_term(pose, mu[0], mu[1], P)
+    return nu0, nu1, q00 + a - (1.0 - rules.range_scale ** 2) * R[0, 0], q01 + b, q11 + d
+
+
+@njit(cache=True)
 def association_loglik(pose, z, R, mu, sigma, cloud, unseen_s, rules):
     """What the association decides by, for one landmark: ``(loglik, d2)`` of the sighting with
     :math:`Q + H_x P H_x^\\top`, the pose uncertainty added to the innovation covariance.
 
     :math:`P` is ``cloud`` (the particle set's covariance, scaled; zeros: table 13.1's) plus the drift
     the particle's pose may have made relative to the landmark since it was last seen, ``unseen_s``
-    seconds ago: :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\min(\\Delta t, T)`
-    (``rules.drift_xy``, ``rules.drift_theta``, per √s; :math:`T` = ``rules.drift_cap_s``).
+    seconds ago (:func:`drift_covariance`: ``rules.drift_xy``, ``rules.drift_theta`` per √s, for at most
+    ``rules.drift_cap_s``).
     """
-    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, ll = ekf_innovation(pose, z, R, mu, sigma)
-    P = cloud.copy()
-    unseen_s = min(unseen_s, rules.drift_cap_s)
-    P[0, 0] += rules.drift_xy ** 2 * unseen_s
-    P[1, 1] += rules.drift_xy ** 2 * unseen_s
-    P[2, 2] += rules.drift_theta ** 2 * unseen_s
-    a, b, d = pose_term(pose, mu[0], mu[1], P)
-    q00, q01, q11 = q00 + a - (1.0 - rules.range_scale ** 2) * R[0, 0], q01 + b, q11 + d
+    nu0, nu1, q00, q01, q11 = innovation_with_pose(pose, z, R, mu, sigma, drift_covariance(cloud, unseen_s, rules),
+                                                   rules)
     det_q = q00 * q11 - q01 * q01
     d2 = (q11 * nu0 * nu0 - 2.0 * q01 * nu0 * nu1 + q00 * nu1 * nu1) / det_q
     return -0.5 * d2 - LOG_2PI - 0.5 * math.log(det_q), d2
@@ -346,7 +376,10 @@ def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
     With mutual exclusion (``rules.exclusive``) the pairs are taken greedily, the most likely first, each
     sighting and each landmark at most once: an approximation of the most likely joint association of
     the instant, so that a landmark is not taken by the sighting of its neighbour just because that
-    sighting came first in the file. Without, each sighting takes its most likely landmark.
+    sighting came first in the file. Without, each sighting takes its most likely landmark. With joint
+    compatibility (``rules.joint``, two sightings or more) the instant is decided as a whole
+    (:func:`joint_slots`), a sighting with candidates may then be new; each sighting keeps its own
+    :math:`\\ell_{ik}` as its log-likelihood.
     """
     n, K = z.shape[0], P.n[m]
     ll = np.full((n, K), -math.inf)
@@ -358,6 +391,11 @@ def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
                 ll[i, k] = lik
     slot = np.full(n, -1, dtype=np.int64)
     chosen = np.full(n, -math.inf)
+    if rules.joint and n > 1 and K > 0 and joint_slots(P, m, pose, cloud, (z, R, t), rules, ll, slot):
+        for i in range(n):
+            if slot[i] >= 0:
+                chosen[i] = ll[i, slot[i]]
+        return slot, chosen
     if not rules.exclusive:
         for i in range(n):
             if K > 0 and ll[i].max() > -math.inf:
@@ -376,6 +414,173 @@ def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
         ll[bi, :] = -math.inf  # the sighting is used, and so is the landmark
         ll[:, bk] = -math.inf
     return slot, chosen
+
+
+#: More joint hypotheses than this in one instant (each sighting's candidates and "new", multiplied): the
+#: instant is decided one sighting at a time instead (:func:`choose_landmarks`).
+JOINT_MAX_HYPOTHESES = 4096
+
+
+@njit(cache=True)
+def joint_slots(P, m, pose, cloud, instant, rules, ll, slot):
+    """The jointly most likely association of one instant's sightings (joint compatibility, Neira and Tardós
+    2001), written into ``slot`` (n,); False (``slot`` untouched) if there are more than ``JOINT_MAX_HYPOTHESES``
+    hypotheses. ``instant = (z (n, 2), R (n, 2, 2), t)``; ``ll`` (n, K) from :func:`choose_landmarks`.
+
+    Sighting :math:`i`'s candidates are the landmarks with ``ll[i, k] > -inf``, and a new landmark
+    (:math:`p_0`). The sightings of one instant share the particle's pose error: the part of the drift that
+    every candidate has in common, :math:`P_c` (``cloud`` plus the drift over the shortest time any candidate
+    was unseen, :func:`drift_covariance`), correlates their innovations,
+    :math:`S = \\mathrm{blockdiag}(D_i) + H_x P_c H_x^\\top`, with :math:`D_i` the rest of each innovation's
+    covariance (its landmark, :math:`R`, and its own further drift: :func:`pair_information`). Each hypothesis
+    (each sighting a free candidate or new, each landmark at most once) is scored by
+    :math:`\\log\\mathcal N(\\nu; 0, S) + \\sum_{\\text{new}} \\log p_0` (:func:`best_joint_hypothesis`). A
+    rotation of the pose that lines every sighting up with a neighbour of its landmark is then one error, paid
+    once, not an independent chance per sighting.
+    """
+    n, K = ll.shape
+    count, unseen = 1, math.inf
+    for i in range(n):
+        c = 1
+        for k in range(K):
+            if ll[i, k] > -math.inf:
+                c += 1
+                unseen = min(unseen, instant[2] - P.last_t[m, k])
+        count *= c
+        if count > JOINT_MAX_HYPOTHESES:
+            return False
+    info = pair_information(P, m, pose, instant, unseen, rules, ll)
+    p0 = np.empty(n)
+    for i in range(n):
+        p0[i] = new_landmark_loglik(instant[1][i], rules.new_chi2)
+    best_joint_hypothesis(info, ll, p0, drift_covariance(cloud, unseen, rules), slot)
+    return True
+
+
+@njit(cache=True)
+def pair_information(P, m, pose, instant, unseen, rules, ll):
+    """What each candidate pair ``(i, k)`` (``ll[i, k] > -inf``) adds to a joint hypothesis
+    (:func:`joint_loglik`): (n, K, 14), :math:`\\nu^\\top D^{-1}\\nu`, :math:`H_x^\\top D^{-1}\\nu` (3),
+    :math:`H_x^\\top D^{-1} H_x` (3×3, row-major) and :math:`\\log\\det D`.
+
+    :math:`D` is the innovation covariance of :func:`innovation_with_pose` with the drift the landmark was
+    unseen for beyond the instant's common ``unseen`` seconds (:func:`joint_slots`): with the common part
+    :math:`H_x P_c H_x^\\top` added back it is the covariance the landmark is decided by alone
+    (:func:`association_loglik`)."""
+    z, R, t = instant
+    n, K = ll.shape
+    info = np.zeros((n, K, 14))
+    common = drift_covariance(np.zeros((3, 3)), unseen, rules)
+    for i in range(n):
+        for k in range(K):
+            if ll[i, k] == -math.inf:
+                continue
+            excess = drift_covariance(np.zeros((3, 3)), t - P.last_t[m, k], rules) - common
+            nu0, nu1, d00, d01, d11 = innovation_with_pose(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], excess, rules)
+            det = d00 * d11 - d01 * d01
+            i00, i01, i11 = d11 / det, -d01 / det, d00 / det  # D⁻¹
+            j0, j1, j2, k0, k1, k2 = pose_jacobian(pose, P.mu[m, k, 0], P.mu[m, k, 1])
+            hr, hb = (j0, j1, j2), (k0, k1, k2)  # the rows of H_x: range, bearing
+            v0, v1 = i00 * nu0 + i01 * nu1, i01 * nu0 + i11 * nu1  # D⁻¹ν
+            info[i, k, 0] = nu0 * v0 + nu1 * v1
+            for u in range(3):
+                info[i, k, 1 + u] = hr[u] * v0 + hb[u] * v1
+                for v in range(3):
+                    info[i, k, 4 + 3 * u + v] = (hr[u] * (i00 * hr[v] + i01 * hb[v])
+                                                 + hb[u] * (i01 * hr[v] + i11 * hb[v]))
+            info[i, k, 13] = math.log(det)
+    return info
+
+
+@njit(cache=True)
+def best_joint_hypothesis(info, ll, p0, Pc, slot):
+    """Every joint hypothesis, scored (:func:`joint_slots`); the best is written into ``slot`` (n,) (-1: new).
+
+    The hypotheses are counted like an odometer: sighting 0's choice turns fastest, through its candidates
+    (``ll[i, k] > -inf``) and "new" (-1); a hypothesis that gives one landmark two sightings is skipped.
+    ``info`` from :func:`pair_information`, ``p0`` (n,) :math:`\\log p_0`, ``Pc`` (3, 3) the common pose
+    covariance."""
+    n, K = ll.shape
+    choice = np.full(n, -1, dtype=np.int64)
+    used = np.zeros(K, dtype=np.bool_)
+    total = np.zeros(14)
+    best = -math.inf
+    while True:
+        ok, score, n_assigned = True, 0.0, 0
+        used[:] = False
+        total[:] = 0.0
+        for i in range(n):
+            k = choice[i]
+            if k < 0:
+                score += p0[i]
+            elif used[k]:
+                ok = False
+                break
+            else:
+                used[k] = True
+                total += info[i, k]
+                n_assigned += 1
+        if ok:
+            score += joint_loglik(total, n_assigned, Pc)
+            if score > best:
+                best = score
+                slot[:] = choice
+        i = 0  # the next hypothesis: turn the odometer
+        while i < n:
+            k = choice[i] + 1
+            while k < K and ll[i, k] == -math.inf:
+                k += 1
+            if k < K:
+                choice[i] = k
+                break
+            choice[i] = -1
+            i += 1
+        if i == n:
+            return
+
+
+@njit(cache=True)
+def joint_loglik(total, n_assigned, Pc):
+    """:math:`\\log\\mathcal N(\\nu; 0, S)` of ``n_assigned`` stacked sightings, :math:`S = D + H_x P_c H_x^\\top`
+    (:math:`D` block-diagonal), from the sums over the sightings of :func:`pair_information`'s rows, ``total``
+    (14,): :math:`a = \\sum \\nu_i^\\top D_i^{-1}\\nu_i`, :math:`b = \\sum H_i^\\top D_i^{-1}\\nu_i` (3),
+    :math:`G = \\sum H_i^\\top D_i^{-1} H_i` (3×3) and :math:`\\sum\\log\\det D_i`. With :math:`A = I + P_c G`
+    (the Woodbury identity and the matrix determinant lemma, so that only 3×3 matrices are solved):
+    :math:`\\nu^\\top S^{-1}\\nu = a - b^\\top A^{-1} P_c b` and :math:`\\log\\det S = \\sum\\log\\det D_i + \\log\\det A`."""
+    if n_assigned == 0:
+        return 0.0
+    A = np.empty((3, 3))  # A = I + P_c G
+    for u in range(3):
+        for v in range(3):
+            A[u, v] = (1.0 if u == v else 0.0) + (Pc[u, 0] * total[4 + v] + Pc[u, 1] * total[7 + v]
+                                                  + Pc[u, 2] * total[10 + v])
+    c = np.empty(3)  # P_c b
+    for u in range(3):
+        c[u] = Pc[u, 0] * total[1] + Pc[u, 1] * total[2] + Pc[u, 2] * total[3]
+    det_a = det3(A)
+    x = solve3(A, c, det_a)  # A⁻¹ P_c b
+    quad = total[0] - (total[1] * x[0] + total[2] * x[1] + total[3] * x[2])
+    return -0.5 * quad - n_assigned * LOG_2PI - 0.5 * (total[13] + math.log(det_a))
+
+
+@njit(cache=True)
+def det3(A):
+    """The determinant of a 3×3 matrix (cofactors along the first row)."""
+    return (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+            + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
+
+
+@njit(cache=True)
+def solve3(A, c, det_a):
+    """:math:`A^{-1} c` for a 3×3 ``A`` of determinant ``det_a`` (Cramer's rule: unknown :math:`j` is the
+    determinant of ``A`` with column :math:`j` replaced by ``c``, over ``det_a``)."""
+    x = np.empty(3)
+    B = np.empty((3, 3))
+    for j in range(3):
+        B[:] = A
+        B[:, j] = c
+        x[j] = det3(B) / det_a
+    return x
 
 
 @njit(cache=True)
@@ -835,6 +1040,8 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
 
 __all__ = ["AssociationParams", "AssociationResult", "MapParticles", "Rules", "initial_particles",
            "new_landmark_loglik", "best_landmark", "choose_landmarks", "add_landmark", "remove_landmark",
+           "pose_jacobian", "drift_covariance", "innovation_with_pose", "association_loglik", "JOINT_MAX_HYPOTHESES",
+           "joint_slots", "pair_information", "best_joint_hypothesis", "joint_loglik",
            "in_view", "existence_log_odds", "negative_evidence", "heir_of", "retire_landmarks", "associate_particle",
            "select_maps",
            "AssociationRecord", "run_unknown_segments", "best_history", "seen_together", "merge_copies", "run_unknown"]
