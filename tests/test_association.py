@@ -422,6 +422,11 @@ def test_online_ceiling_on_the_simulation():
     assert probe.scored + probe.first_sightings == n_landmark and 0 < probe.first_sightings < 20
     assert probe.accuracy > 0.95
     assert narrow.accuracy < 0.05 and narrow.scored == probe.scored
+    from fastslam_edu.landmark.fastslam_tree import TreeParticleSet
+
+    on_trees = score.OnlineCeiling(SIM_PARAMS)  # the same run on the landmark trees reads the same particles
+    run_fastslam(stream, SIM_FILTER, 0, hooks=(on_trees,), particle_class=TreeParticleSet)
+    assert on_trees.accuracy == pytest.approx(probe.accuracy) and on_trees.scored == probe.scored
 
 
 def test_fastslam2_proposal_with_unknown_correspondences(sim_run):

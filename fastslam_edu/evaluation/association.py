@@ -34,7 +34,7 @@ from scipy.optimize import linear_sum_assignment
 from fastslam_edu.core.measurement import innovation, range_bearing
 from fastslam_edu.evaluation.metrics import align_se2, apply_se2
 from fastslam_edu.landmark.association import AssociationParams, MapParticles, choose_landmarks
-from fastslam_edu.landmark.fastslam import FilterRun, Hook
+from fastslam_edu.landmark.fastslam import FilterRun, Hook, ParticleSet
 
 #: Map landmarks further than this from every surveyed landmark they could be matched to are spurious [m].
 MAX_MATCH_DISTANCE = 1.0
@@ -219,7 +219,7 @@ class OnlineCeiling(Hook):
     The pose and map each particle decides from are those of a filter that never associated wrongly: the accuracy
     is what a particle of the filter without barcodes reaches while it has made no mistake, before any mistake
     compounds. ``accuracy`` (after the run): the weighted fraction over the scored sightings; ``scored``: their
-    number; ``first_sightings``: those left out.
+    number; ``first_sightings``: those left out. Either particle set (arrays, or the landmark trees) is read.
     """
 
     def __init__(self, params: AssociationParams = AssociationParams()):
@@ -238,6 +238,8 @@ class OnlineCeiling(Hook):
         if b <= a:
             return
         parts = run.particles
+        if not isinstance(parts, ParticleSet):  # the landmark trees: read as arrays
+            parts = parts.to_particle_set()
         M, K = parts.seen.shape
         truth = np.asarray(stream.landmark[a:b], dtype=np.int64)
         mapped = parts.seen[:, truth].any(axis=0)
