@@ -235,6 +235,15 @@ def test_joint_loglik_is_the_stacked_gaussian():
         assert joint_loglik(total, n, Pc) == pytest.approx(expected, rel=1e-10)
 
 
+def test_pose_jacobian_is_the_measurement_models():
+    """The compiled H_x of one landmark is core.measurement's jacobian_pose (numpy, vectorised)."""
+    from fastslam_edu.core.measurement import jacobian_pose
+    from fastslam_edu.landmark.association import pose_jacobian
+
+    x, m = np.array([0.3, -0.2, 0.7]), np.array([2.1, 1.4])
+    np.testing.assert_allclose(np.reshape(pose_jacobian(x, *m), (2, 3)), jacobian_pose(x, m), rtol=1e-12)
+
+
 def test_one_pair_of_the_joint_form_is_the_single_decision():
     """A single sighting scored by the joint form, with the common drift added back, has the log-likelihood it is
     decided by alone (association_loglik): the two forms split one covariance, they do not change it."""

@@ -33,7 +33,7 @@ from scipy.optimize import linear_sum_assignment
 
 from fastslam_edu.core.measurement import innovation, range_bearing
 from fastslam_edu.evaluation.metrics import align_se2, apply_se2
-from fastslam_edu.landmark.association import AssociationParams, MapParticles, choose_landmarks
+from fastslam_edu.landmark.association import AssociationParams, choose_landmarks, initial_particles, pose_covariance
 from fastslam_edu.landmark.fastslam import FilterRun, Hook, ParticleSet
 
 #: Map landmarks further than this from every surveyed landmark they could be matched to are spurious [m].
@@ -194,10 +194,12 @@ def particles_right(P, z, R, t, truth, w, rules):
     """For each sighting ``z`` (n, 2) of one instant at time ``t``, the weight ``w`` (M,) of the particles of ``P``
     (:class:`~fastslam_edu.landmark.association.MapParticles`) whose association
     (:func:`~fastslam_edu.landmark.association.choose_landmarks`, with ``rules``) gives it its true landmark
-    ``truth`` (n,) (a slot of ``P``): (n,)."""
+    ``truth`` (n,) (a slot of ``P``): (n,). The pose covariance the rule adds is the filter's:
+    ``rules.pose_scale`` times the particles' (:func:`~fastslam_edu.landmark.association.pose_covariance`)."""
     right = np.zeros(z.shape[0])
+    cloud = pose_covariance(P.poses, w) * rules.pose_scale
     for m in range(P.poses.shape[0]):
-        slot, _ = choose_landmarks(P, m, P.poses[m], z, R, np.zeros((3, 3)), t, rules)
+        slot, _ = choose_landmarks(P, m, P.poses[m], z, R, cloud, t, rules)
         for i in range(z.shape[0]):
             if slot[i] == truth[i]:
                 right[i] += w[m]
@@ -246,12 +248,10 @@ class OnlineCeiling(Hook):
         self.first_sightings += int(np.sum(~mapped))
         if not mapped.any():
             return
-        mu = np.where(parts.seen[..., None], parts.mu, np.nan)  # a landmark a particle has not mapped: never chosen
-        last_t = np.broadcast_to(run.last_seen, (M, K)).copy()
-        P = MapParticles(parts.poses.copy(), mu, parts.sigma.copy(), np.full(M, K, dtype=np.int64),
-                         np.tile(np.arange(K), (M, 1)), np.ones((M, K), dtype=np.int64), np.zeros((M, K), dtype=np.int64),
-                         np.full((M, K), float(self.rules.n_confirm)), np.zeros((M, K)), last_t, last_t.copy(),
-                         np.zeros(M))
+        P = initial_particles(M, K, np.zeros(3))  # slot k holds landmark k, every landmark confirmed
+        P.poses[:], P.sigma[:], P.n[:], P.ident[:] = parts.poses, parts.sigma, K, np.arange(K)
+        P.mu[:] = np.where(parts.seen[..., None], parts.mu, np.nan)  # a landmark a particle has not mapped: never chosen
+        P.evidence[:], P.last_t[:] = self.rules.n_confirm, run.last_seen
         w = np.asarray(run.w, dtype=float)
         right = particles_right(P, np.ascontiguousarray(stream.z[a:b], dtype=float),
                                 np.ascontiguousarray(run.R[a:b]), float(stream.t[e]), truth, w / w.sum(), self.rules)
