@@ -42,6 +42,7 @@ evaluation      measuring results
     noise_estimation  the sensor and odometry noise, measured against groundtruth
     audit           the MR.CLAM landmark table checked against the sightings
     association     scoring data association: map matched to the survey, accuracy, the oracle bound
+    registration    the rigid motion that lays a map without names on the survey (a consensus, for the matching)
 
 app             the application
     experiment      one MR.CLAM run end to end (load, audit, run, score)

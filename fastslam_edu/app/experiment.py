@@ -342,7 +342,8 @@ def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLo
     """The figures of a run with unknown correspondences: association scores, map counts and the usual errors.
 
     The map's landmarks are matched to the surveyed ones (:func:`fastslam_edu.evaluation.association.match_landmarks`,
-    starting from the SE(2) motion that fits the filter's mean path to the groundtruth when there is one);
+    starting from the SE(2) motion that fits the filter's mean path to the groundtruth when there is one, and from
+    the motion that registers the map on the survey, :func:`fastslam_edu.evaluation.registration.register`);
     the landmark errors are those of the matched landmarks.
     """
     from fastslam_edu.evaluation import association as score

@@ -32,9 +32,11 @@ from numba import njit
 from scipy.optimize import linear_sum_assignment
 
 from fastslam_edu.core.measurement import innovation, range_bearing
+from fastslam_edu.evaluation import registration
 from fastslam_edu.evaluation.metrics import align_se2, apply_se2
-from fastslam_edu.landmark.association import AssociationParams, choose_landmarks, initial_particles, pose_covariance
+from fastslam_edu.landmark.association import AssociationParams, choose_landmarks, initial_particles
 from fastslam_edu.landmark.fastslam import FilterRun, Hook, ParticleSet
+from fastslam_edu.landmark.fastslam_step import pose_covariance
 
 #: Map landmarks further than this from every surveyed landmark they could be matched to are spurious [m].
 MAX_MATCH_DISTANCE = 1.0
@@ -50,7 +52,7 @@ def _assign(estimate, truth, max_distance):
 
 
 def match_landmarks(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE, align: bool = True,
-                    iterations: int = 3, start=None) -> np.ndarray:
+                    iterations: int = 3, start=None, register: bool = True) -> np.ndarray:
     """For each map landmark (L, 2), the index of the surveyed landmark (K, 2) it is matched to, or -1.
 
     The one-to-one assignment that minimises the summed distance
@@ -59,17 +61,37 @@ def match_landmarks(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE, a
     (:func:`fastslam_edu.evaluation.metrics.align_se2`), and matched again, ``iterations`` times: SLAM
     recovers the map only up to such a motion, and where surveyed landmarks stand a few tenths of a
     metre apart a small offset of the whole map would otherwise match each landmark to its neighbour.
-    ``start``: ``(R (2, 2), t (2,))``, the motion the map is moved by before the first assignment
-    (:func:`path_alignment`: the motion that fits the filter's path to the groundtruth); without it, a
-    map that SLAM placed more than ``max_distance`` from the survey as a whole would match nothing.
+
+    Where the matching starts: ``start``, ``(R (2, 2), t (2,))``, the motion the map is moved by before the first
+    assignment (:func:`path_alignment`: the motion that fits the filter's path to the groundtruth; None: the map
+    as it is), and with ``register`` (default) also the motion that lays the map on the survey by itself
+    (:func:`fastslam_edu.evaluation.registration.register`): a filter whose heading drifted ends with a map turned
+    away from its average path. Of the two, the matching with more pairs is kept (then the smaller summed distance).
     """
     estimate = np.asarray(estimate, dtype=float).reshape(-1, 2)
     truth = np.asarray(truth, dtype=float).reshape(-1, 2)
     if len(estimate) == 0 or len(truth) == 0:
         return np.full(len(estimate), -1, dtype=np.int64)
+    starts = [start]
+    if register:
+        starts.append(registration.register(estimate, truth))
+    best, best_key = None, None
+    for motion in starts:
+        if motion is None and best is not None:
+            continue
+        out, moved = _match_from(estimate, truth, motion, max_distance, iterations if align else 0)
+        ok = out >= 0
+        key = (int(ok.sum()), -float(np.linalg.norm(moved[ok] - truth[out[ok]], axis=1).sum()))
+        if best_key is None or key > best_key:
+            best, best_key = out, key
+    return best
+
+
+def _match_from(estimate, truth, start, max_distance, iterations):
+    """:func:`match_landmarks` from one start: ``(match (L,), the map as moved last (L, 2))``."""
     moved = estimate if start is None else apply_se2(estimate, *start)
     out = _assign(moved, truth, max_distance)
-    for _ in range(iterations if align else 0):
+    for _ in range(iterations):
         ok = out >= 0
         if ok.sum() < 3:
             break
@@ -79,7 +101,7 @@ def match_landmarks(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE, a
         if np.array_equal(again, out):
             break
         out = again
-    return out
+    return out, moved
 
 
 def path_alignment(path_xy, truth_xy):
@@ -195,7 +217,7 @@ def particles_right(P, z, R, t, truth, w, rules):
     (:class:`~fastslam_edu.landmark.association.MapParticles`) whose association
     (:func:`~fastslam_edu.landmark.association.choose_landmarks`, with ``rules``) gives it its true landmark
     ``truth`` (n,) (a slot of ``P``): (n,). The pose covariance the rule adds is the filter's:
-    ``rules.pose_scale`` times the particles' (:func:`~fastslam_edu.landmark.association.pose_covariance`)."""
+    ``rules.pose_scale`` times the particles' (:func:`~fastslam_edu.landmark.fastslam_step.pose_covariance`)."""
     right = np.zeros(z.shape[0])
     cloud = pose_covariance(P.poses, w) * rules.pose_scale
     for m in range(P.poses.shape[0]):

@@ -33,7 +33,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.landmark.fastslam import FastSLAMParams, combined_map, combined_pose
+from fastslam_edu.landmark.fastslam import FastSLAMParams, combined_map
+from fastslam_edu.landmark.fastslam_step import pose_covariance as compiled_pose_covariance, weighted_mean_pose
 from fastslam_edu.datasets.sim import SimConfig
 
 __all__ = [
@@ -119,10 +120,12 @@ def pose_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean and covariance of a particle cloud of poses.
 
     :math:`\\bar x = \\sum_m w^{[m]} x^{[m]}` with the circular mean for the heading
-    (:func:`fastslam_edu.landmark.fastslam.combined_pose`), and
+    (:func:`fastslam_edu.landmark.fastslam_step.weighted_mean_pose`), and
     :math:`P = \\sum_m w^{[m]} \\delta^{[m]} \\delta^{[m]\\top}` with
     :math:`\\delta^{[m]} = x^{[m]} - \\bar x`, its heading wrapped: a cloud that
-    straddles θ = ±π has a small variance, not one of π².
+    straddles θ = ±π has a small variance, not one of π². The inputs are checked here; the sums are
+    :func:`fastslam_edu.landmark.fastslam_step.pose_covariance`'s, the covariance the association adds to
+    its innovations.
 
     Parameters
     ----------
@@ -140,9 +143,10 @@ def pose_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"pose_covariance: poses (M, 3) and w (M,) expected, got {x.shape} and {w.shape}")
     if not abs(w.sum() - 1.0) < 1e-9 or (w < 0).any():
         raise ValueError(f"pose_covariance: w must be non-negative and sum to 1, sum is {w.sum()!r}")
-    mean = combined_pose(x, w)
-    delta = pose_error(x, mean)
-    return mean, (w[:, None] * delta).T @ delta
+    x, w = np.ascontiguousarray(x), np.ascontiguousarray(w)
+    mean = np.empty(3)
+    weighted_mean_pose(x, w, mean)
+    return mean, compiled_pose_covariance(x, w)
 
 
 def align_pose(pose, cov, R, t, angle) -> tuple[np.ndarray, np.ndarray]:

@@ -89,8 +89,8 @@ from fastslam_edu.core.params import Params
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.fastslam import (RESAMPLER_CODES, FastSLAMParams, _segments, stream_commands)
 from fastslam_edu.landmark.fastslam_step import (Log, Settings, motion_prediction_of, normalise_weights,
-                                                 resampling_indices, sample_segment, standard_normals,
-                                                 weighted_mean_pose)
+                                                 pose_covariance, resampling_indices, sample_segment,
+                                                 standard_normals, weighted_mean_pose)
 from fastslam_edu.landmark.proposal import improved_pose_into
 
 
@@ -767,22 +767,6 @@ def apply_associations(P, m, instant, chosen, rules, next_ident, out):
             next_ident[0] += 1
             taken[k] = True
     negative_evidence(P, m, taken, rules)
-
-
-@njit(cache=True)
-def pose_covariance(poses, w):
-    """The weighted covariance (3, 3) of the particles' poses (headings about their circular mean)."""
-    mean = np.zeros(3)
-    weighted_mean_pose(poses, w, mean)
-    cov = np.zeros((3, 3))
-    e = np.empty(3)
-    for m in range(poses.shape[0]):
-        e[0], e[1] = poses[m, 0] - mean[0], poses[m, 1] - mean[1]
-        e[2] = wrap_one(poses[m, 2] - mean[2])
-        for u in range(3):
-            for v in range(3):
-                cov[u, v] += w[m] * e[u] * e[v]
-    return cov
 
 
 @njit(cache=True)

@@ -357,6 +357,24 @@ def weighted_mean_pose(poses, w, out):
     out[0], out[1], out[2] = x, y, wrap_one(math.atan2(s, c))
 
 
+@njit(cache=True)
+def pose_covariance(poses, w):
+    """The weighted covariance (3, 3) of the particles' poses ``poses`` (M, 3), ``w`` (M,) normalised:
+    :math:`P = \\sum_m w^{[m]} \\delta^{[m]} \\delta^{[m]\\top}`, :math:`\\delta^{[m]} = x^{[m]} - \\bar x` about the mean
+    of :func:`weighted_mean_pose`, the heading difference wrapped (a cloud that straddles θ = ±π has a small
+    variance, not one of π²)."""
+    mean = np.zeros(3)
+    weighted_mean_pose(poses, w, mean)
+    cov = np.zeros((3, 3))
+    e = np.empty(3)
+    for m in range(poses.shape[0]):
+        e[0], e[1] = poses[m, 0] - mean[0], poses[m, 1] - mean[1]
+        e[2] = wrap_one(poses[m, 2] - mean[2])
+        for u in range(3):
+            for v in range(3):
+                cov[u, v] += w[m] * e[u] * e[v]
+    return cov
+
 
 # ---------------------------------------------------------------- what the run remembers of past sightings
 

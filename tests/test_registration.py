@@ -1,0 +1,96 @@
+"""Registration without correspondences (evaluation.registration), checked against known motions and against the
+least-squares fit with the correspondences known (evaluation.metrics.align_se2)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from fastslam_edu.evaluation import association as score
+from fastslam_edu.evaluation.metrics import align_se2
+from fastslam_edu.evaluation.registration import consensus_motion, count_inliers, motion_of_two, register
+
+
+def turned(points, angle, shift):
+    c, s = math.cos(angle), math.sin(angle)
+    return np.asarray(points) @ np.array([[c, -s], [s, c]]).T + shift
+
+
+def survey_and_map(seed, angle=1.2, shift=(-8.0, 3.0), noise=0.05, spurious=6, missing=3):
+    """Surveyed landmarks (15, 2), and a map of them moved by a rigid motion, with noise, without ``missing`` of
+    them and with ``spurious`` landmarks of nothing; returns (truth, estimate, index of the truth of each)."""
+    rng = np.random.default_rng(seed)
+    truth = rng.uniform(-5, 5, (15, 2))
+    kept = np.arange(missing, 15)
+    estimate = turned(truth[kept], angle, shift) + rng.normal(0, noise, (len(kept), 2))
+    estimate = np.vstack([estimate, turned(rng.uniform(-5, 5, (spurious, 2)), angle, shift)])
+    return truth, estimate, np.concatenate([kept, np.full(spurious, -1)])
+
+
+def test_motion_of_two_maps_a_pair_onto_a_pair_moved_by_a_known_motion():
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        a = rng.uniform(-5, 5, (2, 2))
+        angle, shift = rng.uniform(-3, 3), rng.uniform(-10, 10, 2)
+        b = turned(a, angle, shift)
+        phi, tx, ty = motion_of_two(a[0], a[1], b[0], b[1])
+        assert math.isclose(math.remainder(phi - angle, 2 * math.pi), 0.0, abs_tol=1e-9)
+        np.testing.assert_allclose(turned(a, phi, (tx, ty)), b, atol=1e-9)
+
+
+def test_count_inliers_counts_points_within_the_radius():
+    A = np.array([[0.0, 0.0], [1.0, 0.0], [5.0, 5.0]])
+    B = np.array([[0.1, 0.0], [1.0, 0.45]])
+    count, cost = count_inliers(A, B, 0.0, 0.0, 0.0, 0.5)
+    assert count == 2 and cost == pytest.approx(0.1 + 0.45)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_register_finds_the_motion_that_least_squares_finds_with_the_correspondences_known(seed):
+    """A map turned by 1.2 rad and moved 8.5 m, with 3 landmarks missing and 6 spurious: the consensus motion is
+    within the noise of the least-squares motion fitted to the true pairs (align_se2), and so is its inverse of the
+    motion the map was made with."""
+    truth, estimate, of = survey_and_map(seed)
+    R, t = register(estimate, truth)
+    known = of >= 0
+    R_ls, t_ls, _ = align_se2(estimate[known], truth[of[known]])
+    assert math.isclose(math.atan2(R[1, 0], R[0, 0]), math.atan2(R_ls[1, 0], R_ls[0, 0]), abs_tol=0.05)
+    np.testing.assert_allclose(estimate[known] @ R.T + t, estimate[known] @ R_ls.T + t_ls, atol=0.25)
+    np.testing.assert_allclose(estimate[known] @ R.T + t, truth[of[known]], atol=0.3)
+
+
+def test_matching_without_a_start_registers_the_map_first():
+    truth, estimate, of = survey_and_map(7)
+    match = score.match_landmarks(estimate, truth)
+    assert match.tolist() == of.tolist()
+    assert np.sum(score.match_landmarks(estimate, truth, register=False) == of) <= 6  # the spurious ones, unmatched
+    assert score.landmarks_spurious(estimate, truth) == 6
+
+
+def test_a_wrong_start_is_overruled_by_the_registration():
+    """The path's motion says the map is where it is; the map is in fact turned by 1.2 rad: the registration's
+    matching has more pairs, and is kept."""
+    truth, estimate, of = survey_and_map(8)
+    wrong = (np.eye(2), np.zeros(2))
+    assert score.match_landmarks(estimate, truth, start=wrong).tolist() == of.tolist()
+    assert np.sum(score.match_landmarks(estimate, truth, start=wrong, register=False) >= 0) <= 3
+
+
+def test_register_without_a_proposal_and_with_bad_input():
+    assert register([[0.0, 0.0]], [[1.0, 1.0], [2.0, 2.0]]) is None  # one landmark fixes no rotation
+    assert register([[0.0, 0.0], [0.5, 0.0]], [[1.0, 1.0], [1.5, 1.0]]) is None  # closer than min_baseline
+    count, *_ = consensus_motion(np.zeros((0, 2)), np.ones((3, 2)), 0.5, 1.0)
+    assert count == 0
+    with pytest.raises(ValueError, match="register: estimate contains a non-finite value"):
+        register([[0.0, np.nan], [2.0, 0.0]], [[0.0, 0.0], [2.0, 0.0]])
+    with pytest.raises(ValueError, match="register: truth must have shape"):
+        register([[0.0, 0.0], [2.0, 0.0]], [0.0, 0.0, 2.0])
+    with pytest.raises(ValueError, match="radius > 0"):
+        register([[0.0, 0.0], [2.0, 0.0]], [[0.0, 0.0], [2.0, 0.0]], radius=0.0)
+
+
+def test_the_consensus_runs_as_plain_python_with_the_same_result():
+    truth, estimate, _ = survey_and_map(3)
+    compiled = consensus_motion(estimate, truth, 0.5, 1.0)
+    plain = getattr(consensus_motion, "py_func", consensus_motion)(estimate, truth, 0.5, 1.0)
+    assert plain[0] == compiled[0] and np.allclose(plain[1:], compiled[1:], atol=1e-12)
