@@ -8,7 +8,8 @@ import pytest
 
 from fastslam_edu.evaluation import association as score
 from fastslam_edu.evaluation.metrics import align_se2
-from fastslam_edu.evaluation.registration import consensus_motion, count_inliers, motion_of_two, register
+from fastslam_edu.evaluation.registration import (consensus_motion, count_inliers, motion_of_two, pairs_by_distance,
+                                                  point_grid, register)
 
 
 def turned(points, angle, shift):
@@ -41,8 +42,32 @@ def test_motion_of_two_maps_a_pair_onto_a_pair_moved_by_a_known_motion():
 def test_count_inliers_counts_points_within_the_radius():
     A = np.array([[0.0, 0.0], [1.0, 0.0], [5.0, 5.0]])
     B = np.array([[0.1, 0.0], [1.0, 0.45]])
-    count, cost = count_inliers(A, B, 0.0, 0.0, 0.0, 0.5)
+    count, cost = count_inliers(A, B, point_grid(B, 0.5), (0.0, 0.0, 0.0), 0.5)
     assert count == 2 and cost == pytest.approx(0.1 + 0.45)
+    assert count_inliers(A, B, point_grid(B, 0.5), (0.0, 0.0, 0.0), 0.5, 3) == (-1, math.inf)  # 3 out of reach
+
+
+@pytest.mark.parametrize("spread", [10.0, 5000.0])  # 5 km: the grid's cells grow past the radius
+def test_the_grid_counts_what_every_distance_counts(spread):
+    """count_inliers looks only at the 3x3 cells around each moved point; numpy's every-pair distances agree."""
+    rng = np.random.default_rng(4)
+    B = rng.uniform(-spread, spread, (60, 2))
+    grid = point_grid(B, 0.5)
+    for _ in range(30):
+        A = np.vstack([B[rng.choice(60, 20)] + rng.normal(0, 0.4, (20, 2)), rng.uniform(-spread, spread, (20, 2))])
+        motion = (rng.uniform(-0.01, 0.01), rng.normal(0, 0.1), rng.normal(0, 0.1))
+        moved = turned(A, motion[0], motion[1:])
+        nearest = np.linalg.norm(moved[:, None] - B[None], axis=-1).min(axis=1)
+        count, cost = count_inliers(A, B, grid, motion, 0.5)
+        assert count == np.sum(nearest <= 0.5) and cost == pytest.approx(nearest[nearest <= 0.5].sum())
+
+
+def test_pairs_by_distance_are_every_ordered_pair_sorted():
+    B = np.random.default_rng(5).uniform(-5, 5, (7, 2))
+    dist, first, second = pairs_by_distance(B)
+    assert len(dist) == 42 and (np.diff(dist) >= 0).all() and (first != second).all()
+    assert {(int(a), int(b)) for a, b in zip(first, second)} == {(a, b) for a in range(7) for b in range(7) if a != b}
+    np.testing.assert_allclose(dist, np.linalg.norm(B[second] - B[first], axis=1))
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -11,8 +11,8 @@ that start every landmark is matched to a neighbour of its own, or to nothing.
 :func:`consensus_motion` finds the motion from the two point sets alone. Any two map landmarks :math:`a_1, a_2` and
 two surveyed landmarks :math:`b_1, b_2` the same distance apart (within ``2 radius``) propose the motion that turns
 :math:`a_2 - a_1` onto :math:`b_2 - b_1` and lays the midpoint of the first pair on that of the second
-(:func:`motion_of_two`). Every proposal is tried (a map holds a few dozen landmarks), and the motion that brings the
-most map landmarks within ``radius`` of a surveyed one wins, the smaller sum of those distances breaking ties:
+(:func:`motion_of_two`). Each map landmark proposes with its ``PARTNERS`` nearest (one right pair is enough), every
+proposal is tried, and the motion that brings the most map landmarks within ``radius`` of a surveyed one wins, the smaller sum of those distances breaking ties:
 a consensus, as in RANSAC (Fischler and Bolles 1981), without the random draws. Pairs closer than ``min_baseline``
 propose nothing: the direction between two close landmarks is noise (MR.CLAM's stand in clusters 0.2 m apart).
 
@@ -44,47 +44,113 @@ def motion_of_two(a1, a2, b1, b2):
 
 
 @njit(cache=True)
-def count_inliers(A, B, phi, tx, ty, radius):
-    """``(count, cost)``: how many points of ``A`` (na, 2), moved by :math:`(\\varphi, \\tau)`, lie within ``radius``
-    of some point of ``B`` (nb, 2), and the sum of those nearest distances [m]."""
-    c, s = math.cos(phi), math.sin(phi)
+def point_grid(B, cell):
+    """The points ``B`` (nb, 2) filed in square cells of side ``cell`` [m] (at least ``cell``; larger if the points
+    span more than 1,000 cells): ``(x0, y0, side, nx, ny, start, items)``, the points of cell ``(cx, cy)`` being
+    ``items[start[c]:start[c + 1]]`` with ``c = cx * ny + cy``. A point within ``side`` of a position is in the 3×3
+    cells around it, so :func:`count_inliers` looks at a few points, not all of ``B``."""
+    x0, y0 = B[:, 0].min() - cell, B[:, 1].min() - cell
+    side = max(cell, (B[:, 0].max() - x0 + cell) / 1000.0, (B[:, 1].max() - y0 + cell) / 1000.0)
+    nx = int((B[:, 0].max() - x0) / side) + 2
+    ny = int((B[:, 1].max() - y0) / side) + 2
+    key = np.empty(B.shape[0], dtype=np.int64)
+    for j in range(B.shape[0]):
+        key[j] = int((B[j, 0] - x0) / side) * ny + int((B[j, 1] - y0) / side)
+    items = np.argsort(key)
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for j in range(B.shape[0]):
+        start[key[j] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    return x0, y0, side, nx, ny, start, items
+
+
+@njit(cache=True)
+def count_inliers(A, B, grid, motion, radius, enough=0):
+    """``(count, cost)``: how many points of ``A`` (na, 2), moved by ``motion`` :math:`= (\\varphi, \\tau_x, \\tau_y)`,
+    lie within ``radius`` of some point of ``B`` (nb, 2) (filed in ``grid``, :func:`point_grid` with a side of at
+    least ``radius``), and the sum of those nearest distances [m]. The count stops, returning ``(-1, inf)``, as soon
+    as it cannot reach ``enough`` any more."""
+    x0, y0, side, nx, ny, start, items = grid
+    c, s = math.cos(motion[0]), math.sin(motion[0])
     count, cost = 0, 0.0
-    for i in range(A.shape[0]):
-        x, y = c * A[i, 0] - s * A[i, 1] + tx, s * A[i, 0] + c * A[i, 1] + ty
+    na = A.shape[0]
+    for i in range(na):
+        if count + (na - i) < enough:
+            return -1, math.inf
+        x, y = c * A[i, 0] - s * A[i, 1] + motion[1], s * A[i, 0] + c * A[i, 1] + motion[2]
+        gx, gy = int(math.floor((x - x0) / side)), int(math.floor((y - y0) / side))
         nearest = math.inf
-        for j in range(B.shape[0]):
-            nearest = min(nearest, math.hypot(x - B[j, 0], y - B[j, 1]))
+        for cx in range(max(gx - 1, 0), min(gx + 2, nx)):
+            for cy in range(max(gy - 1, 0), min(gy + 2, ny)):
+                cell = cx * ny + cy
+                for q in range(start[cell], start[cell + 1]):
+                    j = items[q]
+                    nearest = min(nearest, math.hypot(x - B[j, 0], y - B[j, 1]))
         if nearest <= radius:
             count += 1
             cost += nearest
+    if count < enough:
+        return -1, math.inf
     return count, cost
+
+
+@njit(cache=True)
+def pairs_by_distance(B):
+    """Every ordered pair ``(j1, j2)`` of ``B`` (nb, 2), ``j1 != j2``, sorted by their distance: ``(distance (P,),
+    j1 (P,), j2 (P,))``, so that the pairs at a given distance are found by bisection."""
+    nb = B.shape[0]
+    n = nb * (nb - 1)
+    dist, first, second = np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    k = 0
+    for j1 in range(nb):
+        for j2 in range(nb):
+            if j1 != j2:
+                dist[k], first[k], second[k] = math.hypot(B[j2, 0] - B[j1, 0], B[j2, 1] - B[j1, 1]), j1, j2
+                k += 1
+    order = np.argsort(dist)
+    return dist[order], first[order], second[order]
+
+
+#: Each map landmark proposes motions with this many others: its nearest ones at least ``min_baseline`` away. With
+#: every pair, a map of L landmarks would make of the order of L² × K² proposals (K surveyed); one right pair is
+#: enough, so a few partners per landmark keep the search linear in L (a map full of spurious landmarks is scored too).
+PARTNERS = 4
 
 
 @njit(cache=True)
 def consensus_motion(A, B, radius, min_baseline):
     """The motion that lays the most points of ``A`` (na, 2) within ``radius`` of points of ``B`` (nb, 2) (module
     docstring): ``(count, φ, τx, τy)``; ``count`` 0 when no two points of ``A`` are ``min_baseline`` apart with a
-    pair of ``B`` at the same distance."""
+    pair of ``B`` at the same distance. Each point of ``A`` proposes with its ``PARTNERS`` nearest points at least
+    ``min_baseline`` away, against every ordered pair of ``B`` at the same distance within ``2 radius``
+    (:func:`pairs_by_distance`)."""
     best_count, best_cost = 0, math.inf
     best_phi = best_tx = best_ty = 0.0
-    na, nb = A.shape[0], B.shape[0]
+    na = A.shape[0]
+    b_dist, b_first, b_second = pairs_by_distance(B)
+    grid = point_grid(B, radius)
+    d = np.empty(na)
     for i1 in range(na):
-        for i2 in range(i1 + 1, na):
-            da = math.hypot(A[i2, 0] - A[i1, 0], A[i2, 1] - A[i1, 1])
-            if da < min_baseline:
+        for i in range(na):
+            d[i] = math.hypot(A[i, 0] - A[i1, 0], A[i, 1] - A[i1, 1])
+        order = np.argsort(d)
+        used = 0
+        for i2 in order:
+            if used == PARTNERS:
+                break
+            da = d[i2]
+            if i2 == i1 or da < min_baseline:
                 continue
-            for j1 in range(nb):
-                for j2 in range(nb):
-                    if j2 == j1:
-                        continue
-                    db = math.hypot(B[j2, 0] - B[j1, 0], B[j2, 1] - B[j1, 1])
-                    if abs(da - db) > 2.0 * radius:
-                        continue
-                    phi, tx, ty = motion_of_two(A[i1], A[i2], B[j1], B[j2])
-                    count, cost = count_inliers(A, B, phi, tx, ty, radius)
-                    if count > best_count or (count == best_count and cost < best_cost):
-                        best_count, best_cost = count, cost
-                        best_phi, best_tx, best_ty = phi, tx, ty
+            used += 1
+            start = np.searchsorted(b_dist, da - 2.0 * radius)
+            stop = np.searchsorted(b_dist, da + 2.0 * radius, side="right")
+            for p in range(start, stop):  # the pairs of B the same distance apart, within 2 radius
+                phi, tx, ty = motion_of_two(A[i1], A[i2], B[b_first[p]], B[b_second[p]])
+                count, cost = count_inliers(A, B, grid, (phi, tx, ty), radius, best_count)
+                if count > best_count or (count == best_count and cost < best_cost):
+                    best_count, best_cost = count, cost
+                    best_phi, best_tx, best_ty = phi, tx, ty
     return best_count, best_phi, best_tx, best_ty
 
 
@@ -112,4 +178,4 @@ def register(estimate, truth, radius: float = 0.5, min_baseline: float = 1.0):
     return R, t
 
 
-__all__ = ["motion_of_two", "count_inliers", "consensus_motion", "register"]
+__all__ = ["PARTNERS", "motion_of_two", "point_grid", "count_inliers", "pairs_by_distance", "consensus_motion", "register"]
