@@ -619,9 +619,9 @@ def test_unknown_correspondences_run_as_plain_python_with_the_same_numbers(tmp_p
 
 def test_the_benchmark_interval_of_the_mean_of_medians():
     """benchmarks/association_mrclam.py judges a change by the mean over robots of the median over seeds, with a
-    bootstrap interval: it is the plain mean of medians, holds it, is a point when no robot varies over seeds, and
-    the same seed gives the same interval."""
-    from association_mrclam import mean_of_medians
+    bootstrap interval (evaluation.metrics.mean_of_medians): it is the plain mean of medians, holds it, is a point
+    when no robot varies over seeds, and the same seed gives the same interval."""
+    from fastslam_edu.evaluation.metrics import mean_of_medians
 
     ratios = [[0.03, 0.6, 0.35, 0.17, 0.05, 0.34], [0.4] * 6, [0.9, 0.1, 0.8]]
     mean, low, high = mean_of_medians(ratios, rng=1)
@@ -629,3 +629,7 @@ def test_the_benchmark_interval_of_the_mean_of_medians():
     assert low < mean < high
     assert mean_of_medians(ratios, rng=1) == (mean, low, high)
     assert mean_of_medians([[0.5] * 4, [0.2] * 4]) == pytest.approx((0.35, 0.35, 0.35))
+    with pytest.raises(ValueError, match="mean_of_medians: values must be"):
+        mean_of_medians([[0.5, np.nan]])
+    with pytest.raises(ValueError, match="mean_of_medians: values must be"):
+        mean_of_medians([[0.5], []])

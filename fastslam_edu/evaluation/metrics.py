@@ -16,6 +16,12 @@ Landmark error of landmark ``k``: ``e_k = ‖μ̂_k − m_k‖`` [m]. Position e
 time ``t_j``: ``e_j = ‖(x̂_j, ŷ_j) − (x_j, y_j)‖`` [m], with the groundtruth pose
 interpolated at ``t_j`` (:func:`interpolate_poses`); heading error
 ``|wrap(θ̂_j − θ_j)|`` [rad].
+
+Over seeds
+----------
+A particle filter's figure is a random variable: each seed draws other noise.
+:func:`mean_of_medians` summarises runs of several robots over several seeds, with
+a bootstrap interval that says how far the seeds alone move the summary.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ __all__ = [
     "trajectory_errors",
     "align_se2",
     "apply_se2",
+    "mean_of_medians",
 ]
 
 
@@ -346,3 +353,23 @@ def trajectory_errors(
         result["heading_errors"] = h
         result["heading_mean"], result["heading_rmse"], result["heading_max"] = _stats(h)
     return result
+
+
+# --------------------------------------------------------------------------- over seeds
+
+
+def mean_of_medians(values, rng=0, n_boot: int = 2000) -> tuple[float, float, float]:
+    """The mean over robots of the median over seeds, and its 95 % bootstrap interval: ``(mean, low, high)``.
+
+    ``values``: one sequence of per-seed figures per robot (one robot: its median and the interval of that median).
+    Each robot's seeds are drawn again with replacement, ``n_boot`` times; each draw gives a mean of medians, and
+    ``low``, ``high`` are their 2.5 and 97.5 % quantiles. ``rng``: a seed or a ``numpy.random.Generator``.
+    """
+    rng = np.random.default_rng(rng)
+    per_robot = [np.asarray(v, dtype=float) for v in values]
+    if not per_robot or any(v.ndim != 1 or len(v) == 0 or not np.isfinite(v).all() for v in per_robot):
+        raise ValueError("mean_of_medians: values must be one non-empty sequence of finite figures per robot")
+    mean = float(np.mean([np.median(v) for v in per_robot]))
+    draws = np.mean([np.median(rng.choice(v, (n_boot, len(v))), axis=1) for v in per_robot], axis=0)
+    low, high = np.quantile(draws, [0.025, 0.975])
+    return mean, float(low), float(high)

@@ -114,7 +114,8 @@ def pairs_by_distance(B):
 
 #: Each map landmark proposes motions with this many others: its nearest ones at least ``min_baseline`` away. With
 #: every pair, a map of L landmarks would make of the order of L² × K² proposals (K surveyed); one right pair is
-#: enough, so a few partners per landmark keep the search linear in L (a map full of spurious landmarks is scored too).
+#: enough, so a few partners per landmark keep the proposals linear in L (a map full of spurious landmarks is scored
+#: too).
 PARTNERS = 4
 
 

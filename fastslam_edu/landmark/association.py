@@ -289,11 +289,12 @@ def new_landmark_loglik(R, d0_sq):
 @njit(cache=True)
 def pose_jacobian(pose, mx, my):
     """:math:`H_x = \\partial h/\\partial x` (2, 3) of the range and bearing of a landmark at ``(mx, my)``, as
-    ``(j0, j1, j2, k0, k1, k2)``: the range row, then the bearing row."""
-    dx, dy = mx - pose[0], my - pose[1]
-    q = dx * dx + dy * dy
-    r = math.sqrt(q)
-    return -dx / r, -dy / r, 0.0, dy / q, -dx / q, -1.0
+    ``(j0, j1, j2, k0, k1, k2)``: the range row, then the bearing row. A landmark moving by :math:`\\delta` and the
+    robot moving by :math:`-\\delta` look the same, so the position columns are :math:`-H` of
+    :func:`fastslam_edu.core.ekf.expected_measurement`; turning the robot by :math:`\\delta\\theta` turns the
+    bearing by :math:`-\\delta\\theta`."""
+    _, _, h00, h01, h10, h11 = expected_measurement(pose, (mx, my))
+    return -h00, -h01, 0.0, -h10, -h11, -1.0
 
 
 @njit(cache=True)
