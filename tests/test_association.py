@@ -29,7 +29,8 @@ SIM_FILTER = FastSLAMParams(n_particles=30, measurement_cov=np.diag([0.05**2, 0.
 R = np.diag([0.05**2, 0.02**2])
 RULES = AssociationParams(filter=SIM_FILTER.replace(measurement_correlation_s=None), new_landmark_chi2=16.0,
                           fov=0.5, min_range=0.3, max_range=5.0, n_confirm=5, detection_probability=0.3,
-                          clutter_probability=0.05, drift_xy=0.0, drift_theta=0.0).rules()
+                          clutter_probability=0.05, drift_xy=0.0, drift_theta=0.0,
+                          joint_compatibility=False).rules()  # the greedy pairing; the joint rule's tests turn it on
 
 
 #: The filter told the simulator's camera: ranges up to 5 m, bearings within ±π/3.
@@ -555,14 +556,15 @@ def test_cli_unknown_correspondences(sim_folder, tmp_path, capsys):
     assert main(["run", "--data", str(sim_folder), "--robot", "1", "--particles", "20", "--quiet", "--correspondences",
                  "unknown", "--proposal", "fastslam2", "--json", str(two)]) == 0
     assert json.loads(two.read_text())["params"]["filter"]["proposal"] == "fastslam2"
-    joint = tmp_path / "joint.json"
+    assert json.loads(two.read_text())["params"]["joint_compatibility"] is True  # the default rule
+    greedy = tmp_path / "greedy.json"
     assert main(["run", "--data", str(sim_folder), "--robot", "1", "--particles", "20", "--quiet", "--correspondences",
-                 "unknown", "--joint-compatibility", "--json", str(joint)]) == 0
-    assert json.loads(joint.read_text())["params"]["joint_compatibility"] is True
+                 "unknown", "--association", "greedy", "--json", str(greedy)]) == 0
+    assert json.loads(greedy.read_text())["params"]["joint_compatibility"] is False
     for refused in (["--filter", "ekf", "--correspondences", "unknown"], []):  # EKF-SLAM's, or known barcodes
-        assert main(["run", "--data", str(sim_folder), "--robot", "1", "--quiet", "--joint-compatibility",
+        assert main(["run", "--data", str(sim_folder), "--robot", "1", "--quiet", "--association", "joint",
                      *refused]) != 0
-        assert "--joint-compatibility" in capsys.readouterr().err
+        assert "--association" in capsys.readouterr().err
 
 
 def test_association_table_counts_merged_and_split():

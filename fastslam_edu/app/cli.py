@@ -68,9 +68,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "per particle (fastslam_edu.landmark.association), EKF-SLAM by nearest neighbour (--filter "
                           "ekf), every sighting given without its barcode (other robots and misread barcodes "
                           "included); the barcodes only score the associations")
-    run.add_argument("--joint-compatibility", action="store_true",
-                     help="with --correspondences unknown: FastSLAM decides the sightings of each instant jointly, "
-                          "their innovations correlated by the pose error they share (AssociationParams."
+    run.add_argument("--association", choices=("joint", "greedy"), default=None,
+                     help="with --correspondences unknown, how FastSLAM decides the sightings of one instant: joint "
+                          "(default): as a whole, their innovations correlated by the pose error they share; greedy: "
+                          "the most likely pair first, each sighting and landmark once (AssociationParams."
                           "joint_compatibility)")
     run.add_argument("--mode", choices=MODES, default="slam")
     run.add_argument("--proposal", choices=PROPOSALS, default="motion",
@@ -176,7 +177,7 @@ def _check_ekf_options(args) -> None:
     given = [name for name, used in (("--particles", args.particles is not None),
                                      ("--resampler", args.resampler is not None),
                                      ("--proposal", args.proposal != "motion"), ("--mode", args.mode != "slam"),
-                                     ("--smooth", args.smooth), ("--joint-compatibility", args.joint_compatibility))
+                                     ("--smooth", args.smooth), ("--association", args.association is not None))
              if used]
     if given:
         raise ValueError(f"{', '.join(given)}: FastSLAM's option(s), not EKF-SLAM's (--filter ekf)")
@@ -252,7 +253,7 @@ def cmd_run_unknown(args) -> int:
     f = defaults.filter
     params = defaults.replace(filter=f.replace(n_particles=f.n_particles if args.particles is None else args.particles,
                                                resampler=args.resampler or f.resampler, proposal=args.proposal),
-                              joint_compatibility=args.joint_compatibility)
+                              joint_compatibility=(args.association or "joint") == "joint")
     result, summary, ctx = run_mrclam_unknown(args.data, args.robot, params, args.seed, rate=args.rate, x0=args.x0,
                                               groundtruth_file=args.groundtruth, audit=not args.no_audit)
     summary["filter"] = "fastslam"
@@ -299,8 +300,8 @@ def cmd_run(args) -> int:
         return cmd_run_ekf(args)
     if args.correspondences == "unknown":
         return cmd_run_unknown(args)
-    if args.joint_compatibility:
-        raise ValueError("--joint-compatibility decides associations: it needs --correspondences unknown")
+    if args.association is not None:
+        raise ValueError("--association decides which landmark a sighting is: it needs --correspondences unknown")
     if args.smooth and args.mode != "slam":
         raise ValueError(f"--smooth solves full SLAM; it does not apply to --mode {args.mode}")
     defaults = FastSLAMParams()

@@ -12,12 +12,13 @@ sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
    initialised (:func:`fastslam_edu.core.ekf.ekf_initialise`) and the weight grows by
    :math:`\\log p_0`. Sightings from ``min_range`` to ``new_max_range`` start landmarks; negative
    evidence checks them once they are within ``max_range``.
-2. **Mutual exclusion** (optional, ``exclusive``): within one camera frame two
-   sightings are two different things. The pairs (sighting, landmark) of the instant
-   are taken most likely first, each sighting and each landmark once. **Joint
-   compatibility** (optional, ``joint_compatibility``, :func:`joint_slots`) decides
-   the instant as a whole instead: every hypothesis is scored by the joint Gaussian of
-   its innovations, correlated by the pose error the sightings share.
+2. **Mutual exclusion**: within one camera frame two sightings are two different
+   things. **Joint compatibility** (``joint_compatibility``, the default; :func:`joint_slots`)
+   decides the instant as a whole: every hypothesis (each sighting a landmark or new, no
+   landmark twice) is scored by the joint Gaussian of its innovations, correlated by the
+   pose error the sightings share. Without it, the pairs (sighting, landmark) of the instant
+   are taken most likely first, each sighting and each landmark once (``exclusive``, the
+   greedy pairing), or each sighting alone.
 3. **Negative evidence** (:func:`negative_evidence`): a landmark the particle
    expects to see (inside the camera's field of view and range) at an instant
    when something is seen, but which no sighting of that instant was assigned
@@ -154,7 +155,10 @@ class AssociationParams(Params):
         is merged into it (:func:`merge_copies`; 0: none).
     joint_compatibility : bool
         The sightings of one instant are associated jointly, their innovations correlated by the pose error they
-        share (:func:`joint_slots`), instead of one by one (``exclusive``'s greedy pairing, or each alone).
+        share (:func:`joint_slots`; default), instead of one by one (False: ``exclusive``'s greedy pairing, or each
+        alone). On MR.CLAM's seven robots with groundtruth it associates more sightings rightly than the greedy
+        pairing (over seeds 0–39, by a difference whose 95 % bootstrap interval stays above zero), at 1.0–1.5 times
+        its filter time (``benchmarks/association_mrclam.py`` and its ``--greedy``).
     """
 
     filter: FastSLAMParams = field(default_factory=FastSLAMParams)
@@ -178,7 +182,7 @@ class AssociationParams(Params):
     log_odds_cap_sightings: float = 5.0
     inherit_radius: float = 1.0
     merge_radius: float = 0.5
-    joint_compatibility: bool = False
+    joint_compatibility: bool = True
 
     def __post_init__(self):
         if not isinstance(self.filter, FastSLAMParams):
@@ -471,12 +475,15 @@ def pair_information(P, m, pose, instant, unseen, rules, ll):
     z, R, t = instant
     n, K = ll.shape
     info = np.zeros((n, K, 14))
-    common = drift_covariance(np.zeros((3, 3)), unseen, rules)
+    common = min(unseen, rules.drift_cap_s)
+    excess = np.zeros((3, 3))  # the drift beyond the common part (drift_covariance's diagonal, differenced)
     for i in range(n):
         for k in range(K):
             if ll[i, k] == -math.inf:
                 continue
-            excess = drift_covariance(np.zeros((3, 3)), t - P.last_t[m, k], rules) - common
+            own = min(t - P.last_t[m, k], rules.drift_cap_s)
+            excess[0, 0] = excess[1, 1] = rules.drift_xy ** 2 * own - rules.drift_xy ** 2 * common
+            excess[2, 2] = rules.drift_theta ** 2 * own - rules.drift_theta ** 2 * common
             nu0, nu1, d00, d01, d11 = innovation_with_pose(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], excess, rules)
             det = d00 * d11 - d01 * d01
             i00, i01, i11 = d11 / det, -d01 / det, d00 / det  # D⁻¹
@@ -550,38 +557,36 @@ def joint_loglik(total, n_assigned, Pc):
     :math:`\\nu^\\top S^{-1}\\nu = a - b^\\top A^{-1} P_c b` and :math:`\\log\\det S = \\sum\\log\\det D_i + \\log\\det A`."""
     if n_assigned == 0:
         return 0.0
-    A = np.empty((3, 3))  # A = I + P_c G
-    for u in range(3):
-        for v in range(3):
-            A[u, v] = (1.0 if u == v else 0.0) + (Pc[u, 0] * total[4 + v] + Pc[u, 1] * total[7 + v]
-                                                  + Pc[u, 2] * total[10 + v])
-    c = np.empty(3)  # P_c b
-    for u in range(3):
-        c[u] = Pc[u, 0] * total[1] + Pc[u, 1] * total[2] + Pc[u, 2] * total[3]
-    det_a = det3(A)
-    x = solve3(A, c, det_a)  # A⁻¹ P_c b
-    quad = total[0] - (total[1] * x[0] + total[2] * x[1] + total[3] * x[2])
+    # A = I + P_c G and c = P_c b, as scalars: this runs for every hypothesis, and makes no array
+    a00, a01, a02 = 1.0 + _pc_g(Pc, total, 0, 0), _pc_g(Pc, total, 0, 1), _pc_g(Pc, total, 0, 2)
+    a10, a11, a12 = _pc_g(Pc, total, 1, 0), 1.0 + _pc_g(Pc, total, 1, 1), _pc_g(Pc, total, 1, 2)
+    a20, a21, a22 = _pc_g(Pc, total, 2, 0), _pc_g(Pc, total, 2, 1), 1.0 + _pc_g(Pc, total, 2, 2)
+    c0, c1, c2 = _pc_b(Pc, total, 0), _pc_b(Pc, total, 1), _pc_b(Pc, total, 2)
+    det_a = det3_of(a00, a01, a02, a10, a11, a12, a20, a21, a22)
+    # A⁻¹ P_c b by Cramer's rule: unknown j is the determinant of A with column j replaced by c, over det A
+    x0 = det3_of(c0, a01, a02, c1, a11, a12, c2, a21, a22) / det_a
+    x1 = det3_of(a00, c0, a02, a10, c1, a12, a20, c2, a22) / det_a
+    x2 = det3_of(a00, a01, c0, a10, a11, c1, a20, a21, c2) / det_a
+    quad = total[0] - (total[1] * x0 + total[2] * x1 + total[3] * x2)
     return -0.5 * quad - n_assigned * LOG_2PI - 0.5 * (total[13] + math.log(det_a))
 
 
-@njit(cache=True)
-def det3(A):
-    """The determinant of a 3×3 matrix (cofactors along the first row)."""
-    return (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
-            + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
+@njit(cache=True, inline="always")
+def _pc_g(Pc, total, u, v):
+    """Entry ``(u, v)`` of :math:`P_c G`, with :math:`G` row-major in ``total[4:13]``."""
+    return Pc[u, 0] * total[4 + v] + Pc[u, 1] * total[7 + v] + Pc[u, 2] * total[10 + v]
 
 
-@njit(cache=True)
-def solve3(A, c, det_a):
-    """:math:`A^{-1} c` for a 3×3 ``A`` of determinant ``det_a`` (Cramer's rule: unknown :math:`j` is the
-    determinant of ``A`` with column :math:`j` replaced by ``c``, over ``det_a``)."""
-    x = np.empty(3)
-    B = np.empty((3, 3))
-    for j in range(3):
-        B[:] = A
-        B[:, j] = c
-        x[j] = det3(B) / det_a
-    return x
+@njit(cache=True, inline="always")
+def _pc_b(Pc, total, u):
+    """Entry ``u`` of :math:`P_c b`, with :math:`b` in ``total[1:4]``."""
+    return Pc[u, 0] * total[1] + Pc[u, 1] * total[2] + Pc[u, 2] * total[3]
+
+
+@njit(cache=True, inline="always")
+def det3_of(a00, a01, a02, a10, a11, a12, a20, a21, a22):
+    """The determinant of a 3×3 matrix given by its entries, row by row (cofactors along the first row)."""
+    return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
 
 
 @njit(cache=True)
