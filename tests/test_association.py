@@ -523,6 +523,25 @@ def sim_folder(tmp_path_factory):
     return write_dataset(data, tmp_path_factory.mktemp("sim") / "MRCLAM_Sim")
 
 
+def test_anonymous_stream_up_to_t_end(sim_folder):
+    """``anonymous_stream(..., t_end=...)`` is the whole log's stream cut after its last step at or before t_end:
+    the same steps, commands and sightings, and the same truth for them."""
+    from fastslam_edu.app.experiment import anonymous_stream, prepare_run
+
+    dataset, log, _, known = prepare_run(sim_folder, 1)
+    whole, truth = anonymous_stream(sim_folder, 1, dataset, log, x0=known.x0)
+    t_end = whole.t[0] + 12.0
+    cut, cut_truth = anonymous_stream(sim_folder, 1, dataset, log, x0=known.x0, t_end=t_end)
+    n = int(np.searchsorted(whole.t, t_end, side="right"))
+    k = int(whole.offsets[n])
+    assert 0 < n < len(whole.t) and 0 < k < len(truth)
+    for name in ("t", "dt", "u"):
+        np.testing.assert_array_equal(getattr(cut, name), getattr(whole, name)[:n])
+    np.testing.assert_array_equal(cut.offsets, whole.offsets[:n + 1])
+    np.testing.assert_array_equal(cut.z, whole.z[:k])
+    np.testing.assert_array_equal(cut_truth, truth[:k])
+
+
 def test_cli_unknown_correspondences(sim_folder, tmp_path, capsys):
     """``--correspondences unknown``: the other robot's sightings are clutter given to the filter; the JSON has the
     association figures, for FastSLAM and for EKF-SLAM (``--filter ekf``) alike."""

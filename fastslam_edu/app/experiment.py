@@ -300,13 +300,15 @@ def run_mrclam_ekf(path, robot: int, params: EKFSLAMParams = EKFSLAMParams(), *,
 CLUTTER = -1
 
 
-def anonymous_stream(path, robot: int, dataset: Dataset, log: RobotLog, *, rate: str = "full", x0=None):
+def anonymous_stream(path, robot: int, dataset: Dataset, log: RobotLog, *, rate: str = "full", x0=None,
+                     t_end: float | None = None):
     """Every sighting of the robot's measurement file, landmark or not, as an event stream, and its truth.
 
     Returns ``(stream, true_index)``: the stream holds all sightings (of landmarks, of the other
     robots, of barcodes in no table) in the order the known-correspondence stream would; ``true_index``
     (n,) is the surveyed landmark (index into ``dataset.landmark_subjects``) each is of, -1 for clutter.
     The filter with unknown correspondences reads only the stream's ``z``; ``true_index`` scores it.
+    ``t_end``: the last time [s] of the stream (:func:`fastslam_edu.datasets.events.event_stream`; None: the whole log).
     """
     from fastslam_edu.datasets.mrclam import read_measurements
 
@@ -318,7 +320,7 @@ def anonymous_stream(path, robot: int, dataset: Dataset, log: RobotLog, *, rate:
     measurements = raw.rename(columns={"barcode": "subject"}).assign(subject=subject)
     everything = dataclasses.replace(log, measurements=measurements)
     subjects = np.append(dataset.landmark_subjects, CLUTTER)
-    stream = event_stream(everything, subjects, rate=rate, x0=x0)
+    stream = event_stream(everything, subjects, rate=rate, x0=x0, t_end=t_end)
     true_index = np.where(stream.landmark == len(subjects) - 1, -1, stream.landmark)
     return stream, true_index
 

@@ -315,15 +315,24 @@ def pose_term(pose, mx, my, cloud):
     return a, b, d
 
 
+@njit(cache=True, inline="always")
+def drift_variances(unseen_s, rules):
+    """The variances the pose drifts by over ``unseen_s`` seconds, at most ``rules.drift_cap_s``:
+    :math:`(\\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\min(\\Delta t, T)` [m² per axis, rad²]."""
+    unseen_s = min(unseen_s, rules.drift_cap_s)
+    return rules.drift_xy ** 2 * unseen_s, rules.drift_theta ** 2 * unseen_s
+
+
 @njit(cache=True)
 def drift_covariance(cloud, unseen_s, rules):
     """:math:`P`: ``cloud`` (3, 3) plus the drift of the pose over ``unseen_s`` seconds,
-    :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\min(\\Delta t, T)`."""
+    :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\min(\\Delta t, T)`
+    (:func:`drift_variances`)."""
     P = cloud.copy()
-    unseen_s = min(unseen_s, rules.drift_cap_s)
-    P[0, 0] += rules.drift_xy ** 2 * unseen_s
-    P[1, 1] += rules.drift_xy ** 2 * unseen_s
-    P[2, 2] += rules.drift_theta ** 2 * unseen_s
+    v_xy, v_theta = drift_variances(unseen_s, rules)
+    P[0, 0] += v_xy
+    P[1, 1] += v_xy
+    P[2, 2] += v_theta
     return P
 
 
@@ -475,15 +484,15 @@ def pair_information(P, m, pose, instant, unseen, rules, ll):
     z, R, t = instant
     n, K = ll.shape
     info = np.zeros((n, K, 14))
-    common = min(unseen, rules.drift_cap_s)
-    excess = np.zeros((3, 3))  # the drift beyond the common part (drift_covariance's diagonal, differenced)
+    common_xy, common_theta = drift_variances(unseen, rules)
+    excess = np.zeros((3, 3))  # the landmark's own drift beyond the common part
     for i in range(n):
         for k in range(K):
             if ll[i, k] == -math.inf:
                 continue
-            own = min(t - P.last_t[m, k], rules.drift_cap_s)
-            excess[0, 0] = excess[1, 1] = rules.drift_xy ** 2 * own - rules.drift_xy ** 2 * common
-            excess[2, 2] = rules.drift_theta ** 2 * own - rules.drift_theta ** 2 * common
+            own_xy, own_theta = drift_variances(t - P.last_t[m, k], rules)
+            excess[0, 0] = excess[1, 1] = own_xy - common_xy
+            excess[2, 2] = own_theta - common_theta
             nu0, nu1, d00, d01, d11 = innovation_with_pose(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], excess, rules)
             det = d00 * d11 - d01 * d01
             i00, i01, i11 = d11 / det, -d01 / det, d00 / det  # D⁻¹
@@ -1030,7 +1039,8 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
 
 __all__ = ["AssociationParams", "AssociationResult", "MapParticles", "Rules", "initial_particles",
            "new_landmark_loglik", "best_landmark", "choose_landmarks", "add_landmark", "remove_landmark",
-           "pose_jacobian", "drift_covariance", "innovation_with_pose", "association_loglik", "JOINT_MAX_HYPOTHESES",
+           "pose_jacobian", "drift_variances", "drift_covariance", "innovation_with_pose", "association_loglik",
+           "JOINT_MAX_HYPOTHESES",
            "joint_slots", "pair_information", "best_joint_hypothesis", "joint_loglik",
            "in_view", "existence_log_odds", "negative_evidence", "heir_of", "retire_landmarks", "associate_particle",
            "select_maps",
