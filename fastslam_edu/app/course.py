@@ -20,10 +20,10 @@ CHAPTERS: dict[str, str] = {
     "02_motion_model": "The motion model",
     "03_measurement_model": "The measurement model",
     "04_one_landmark_ekf": "One landmark, one EKF",
-    "05_importance_weights": "Importance weights",
-    "06_resampling": "Resampling",
-    "07_putting_it_together": "Putting it together",
-    "08_writeup_experiments": "The write-up's experiments",
+    "05_ekf_slam": "EKF-SLAM",
+    "06_importance_weights": "Importance weights",
+    "07_resampling": "Resampling",
+    "08_putting_it_together": "Putting it together",
     "09_textbook_to_real_data": "From textbook to real data",
     "10_fastslam_on_mrclam": "FastSLAM 1.0 on MR.CLAM",
     "11_fastslam2_proposal": "FastSLAM 2.0's proposal",
@@ -32,8 +32,10 @@ CHAPTERS: dict[str, str] = {
     "14_occupancy_grid": "Occupancy grids",
     "15_grid_slam": "Grid SLAM",
     "16_thor_humanoid": "SLAM on a humanoid (THOR)",
-    "17_ekf_slam": "EKF-SLAM, the baseline",
-    "18_hidden_barcodes": "When the barcodes are hidden",
+    "17_hidden_barcodes": "When the barcodes are hidden",
+    "18_writeup_models": "The write-up's data and models",
+    "19_writeup_filter": "The write-up's filter",
+    "20_writeup_experiments": "The write-up's experiments",
 }
 
 #: Chapter -> the chapters it builds on directly (each of them comes earlier).
@@ -42,33 +44,41 @@ PREREQUISITES: dict[str, tuple[str, ...]] = {
     "02_motion_model": ("01_mrclam_data",),
     "03_measurement_model": ("01_mrclam_data",),
     "04_one_landmark_ekf": ("03_measurement_model",),
-    "05_importance_weights": ("02_motion_model", "04_one_landmark_ekf"),
-    "06_resampling": ("05_importance_weights",),
-    "07_putting_it_together": ("02_motion_model", "06_resampling"),
-    "08_writeup_experiments": ("07_putting_it_together",),
-    "09_textbook_to_real_data": ("07_putting_it_together",),
+    "05_ekf_slam": ("02_motion_model", "04_one_landmark_ekf"),
+    "06_importance_weights": ("02_motion_model", "04_one_landmark_ekf"),
+    "07_resampling": ("06_importance_weights",),
+    "08_putting_it_together": ("02_motion_model", "07_resampling"),
+    "09_textbook_to_real_data": ("08_putting_it_together",),
     "10_fastslam_on_mrclam": ("09_textbook_to_real_data",),
     "11_fastslam2_proposal": ("10_fastslam_on_mrclam",),
-    "12_consistency": ("10_fastslam_on_mrclam",),
-    "13_landmark_tree": ("07_putting_it_together",),
+    "12_consistency": ("05_ekf_slam", "10_fastslam_on_mrclam"),
+    "13_landmark_tree": ("08_putting_it_together",),
     "14_occupancy_grid": ("02_motion_model",),
-    "15_grid_slam": ("06_resampling", "14_occupancy_grid"),
+    "15_grid_slam": ("07_resampling", "14_occupancy_grid"),
     "16_thor_humanoid": ("15_grid_slam",),
-    "17_ekf_slam": ("12_consistency",),
-    "18_hidden_barcodes": ("10_fastslam_on_mrclam",),
+    "17_hidden_barcodes": ("05_ekf_slam", "10_fastslam_on_mrclam"),
+    "18_writeup_models": ("01_mrclam_data", "03_measurement_model"),
+    "19_writeup_filter": ("08_putting_it_together",),
+    "20_writeup_experiments": ("09_textbook_to_real_data",),
 }
 
 #: The book's parts, for the map's columns: caption -> chapters.
 PARTS: dict[str, tuple[str, ...]] = {
     "Getting started": ("01_mrclam_data",),
     "FastSLAM 1.0, one equation at a time": ("02_motion_model", "03_measurement_model", "04_one_landmark_ekf",
-                                             "05_importance_weights", "06_resampling", "07_putting_it_together"),
-    "Landmark SLAM on MR.CLAM": ("08_writeup_experiments", "09_textbook_to_real_data", "10_fastslam_on_mrclam",
+                                             "05_ekf_slam", "06_importance_weights", "07_resampling",
+                                             "08_putting_it_together"),
+    "Landmark SLAM on MR.CLAM": ("09_textbook_to_real_data", "10_fastslam_on_mrclam",
                                 "11_fastslam2_proposal", "12_consistency"),
     "The tree trick": ("13_landmark_tree",),
     "Grid SLAM with LiDAR": ("14_occupancy_grid", "15_grid_slam", "16_thor_humanoid"),
-    "Beyond FastSLAM": ("17_ekf_slam", "18_hidden_barcodes"),
+    "Beyond FastSLAM": ("17_hidden_barcodes",),
+    "Reproducing the write-ups": ("18_writeup_models", "19_writeup_filter", "20_writeup_experiments"),
 }
+
+#: The part whose chapters examine the published write-ups: any chapter may point to it (a link, not a
+#: prerequisite), and it is not part of the core's reading-time budget.
+WRITEUPS_PART = "Reproducing the write-ups"
 
 #: Two ways through the book: path -> sessions -> chapters (reading before the first session included).
 PATHS: dict[str, dict[str, tuple[str, ...]]] = {
@@ -76,8 +86,8 @@ PATHS: dict[str, dict[str, tuple[str, ...]]] = {
         "reading before lecture 1": ("01_mrclam_data",),
         "lecture 1: the two models and one landmark's EKF": ("02_motion_model", "03_measurement_model",
                                                             "04_one_landmark_ekf"),
-        "lecture 2: weights, resampling, the whole filter": ("05_importance_weights", "06_resampling",
-                                                            "07_putting_it_together"),
+        "lecture 2: weights, resampling, the whole filter": ("06_importance_weights", "07_resampling",
+                                                            "08_putting_it_together"),
         "lecture 3: on real data": ("09_textbook_to_real_data", "10_fastslam_on_mrclam"),
     },
     "full course": {f"week {i + 1}": pair for i, pair in enumerate(
@@ -86,7 +96,7 @@ PATHS: dict[str, dict[str, tuple[str, ...]]] = {
 
 
 def chapter_number(name: str) -> int:
-    """The chapter number of notebook ``name`` (``"07_putting_it_together"`` -> 7)."""
+    """The chapter number of notebook ``name`` (``"08_putting_it_together"`` -> 7)."""
     if name not in CHAPTERS:
         raise ValueError(f"unknown chapter {name!r}; the chapters are {', '.join(CHAPTERS)}")
     return int(name[:2])
@@ -113,7 +123,7 @@ def _depths() -> dict[str, int]:
 
 #: one row per part in the map, listed top to bottom
 _ROWS = {"Getting started": 0, "FastSLAM 1.0, one equation at a time": 0, "Landmark SLAM on MR.CLAM": 1,
-         "The tree trick": 2, "Grid SLAM with LiDAR": 3, "Beyond FastSLAM": 1}
+         "The tree trick": 2, "Grid SLAM with LiDAR": 3, "Beyond FastSLAM": 2, "Reproducing the write-ups": 3}
 
 
 def _positions() -> dict[str, tuple[float, float]]:
@@ -132,7 +142,7 @@ def draw_chapter_map(path: str | None = None) -> Figure:
     """The chapters as boxes, an arrow from each prerequisite; ``path`` shades one path's chapters."""
     xy = _positions()
     chosen = set() if path is None else {c for chapters in PATHS[path].values() for c in chapters}
-    colours = dict(zip(PARTS, ["#fdf6d3", "#e8eef7", "#e6f2e6", "#f2e6f2", "#f7efe1", "#e3f1f4"]))
+    colours = dict(zip(PARTS, ["#fdf6d3", "#e8eef7", "#e6f2e6", "#f2e6f2", "#f7efe1", "#e3f1f4", "#eeeeee"]))
     fig, ax = plt.subplots(figsize=(16, 6.5))
     boxes = {}
     for caption, chapters in PARTS.items():
