@@ -46,8 +46,8 @@ from fastslam_edu.datasets import fetch_datasets
 
 folders = fetch_datasets({names})"""
 
-#: Cell metadata of the setup cell: shown in the book, its output (pip, one line per dataset) folded away.
-METADATA = {"tags": ["hide-output"]}
+#: Cell metadata of the setup cell: folded away in the book (a toggle), first in the notebook for Colab and Binder.
+METADATA = {"tags": ["hide-cell"]}
 
 #: The laser datasets, in the order the setup cell names them (after the MR.CLAM datasets).
 LASER_DATASETS = ("intel", "fr079", "thor")

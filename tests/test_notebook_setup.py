@@ -160,6 +160,6 @@ def test_check_and_write_on_a_small_book(tmp_path, capsys):
     assert written.endswith("}\n") and '\n "cells": [\n  {\n' in written  # nbformat's indent=1 layout
     cells = json.loads(written)["cells"]
     assert 'fetch_datasets("intel")' in _source(cells[1]) and "git+https://example.org/book\"" in _source(cells[1])
-    assert cells[1]["metadata"] == {"tags": ["hide-output"]}
+    assert cells[1]["metadata"] == {"tags": ["hide-cell"]}
     setup_cell.main(["--write", "--root", str(tmp_path)])
     assert path.read_text(encoding="utf-8") == written  # idempotent
