@@ -3,6 +3,8 @@
 #   make test   -> venv, install, fetch and verify the data, run every test (package tests + notebooks)
 # In class:
 #   make lab    -> JupyterLab from the project's venv, with the data folder set (extra arguments: LAB_ARGS=...)
+#   make labs   -> the graded labs (labs/): otter assign -> _build/labs/{student,autograder}/<lab>/
+#   make check-labs -> grade the solutions, the handed-out notebooks and planted mistakes (labs/check_grading.py)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
@@ -16,7 +18,7 @@ LAB_ARGS ?=
 MATH_PAGE ?= _build/html/notebooks/04_one_landmark_ekf.html
 CHROMIUM ?= chromium
 
-.PHONY: venv lab-venv data book book-force book-strict test test-package test-notebooks lab check-math bench clean
+.PHONY: venv lab-venv grading-venv labs check-labs data book book-force book-strict test test-package test-notebooks lab check-math bench clean
 
 $(BIN)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +34,12 @@ $(BIN)/.lab-installed: $(BIN)/.installed
 venv: $(BIN)/.installed
 
 lab-venv: $(BIN)/.lab-installed
+
+$(BIN)/.grading-installed: $(BIN)/.installed
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[grading]"
+	touch $@
+
+grading-venv: $(BIN)/.grading-installed
 
 # every dataset the notebooks, benchmarks and command line read: fetched when missing (from the pinned
 # sources, or from $FASTSLAM_EDU_MIRROR), verified by sha256 when present; one line per dataset
@@ -66,6 +74,24 @@ lab: data lab-venv
 # the built book's equations rendered by MathJax from _static, in headless Chromium with no network at all
 check-math:
 	$(BIN)/python .ci/check_math.py --chromium $(CHROMIUM) $(MATH_PAGE)
+
+# the three graded labs (otter-grader): each master labs/<lab>/<lab>.ipynb -> _build/labs/student/<lab>/ (to hand out)
+# and _build/labs/autograder/<lab>/ (solutions, tests, the autograder zip)
+LABS := lab1_models lab2_landmarks lab3_fastslam
+labs: data grading-venv
+	@for lab in $(LABS); do \
+	  echo "== otter assign labs/$$lab/$$lab.ipynb"; \
+	  rm -rf _build/labs/student/$$lab _build/labs/autograder/$$lab _build/labs/assign/$$lab; \
+	  $(BIN)/otter assign --no-run-tests labs/$$lab/$$lab.ipynb _build/labs/assign/$$lab || exit 1; \
+	  mkdir -p _build/labs/student _build/labs/autograder; \
+	  mv _build/labs/assign/$$lab/student _build/labs/student/$$lab; \
+	  mv _build/labs/assign/$$lab/autograder _build/labs/autograder/$$lab; \
+	done
+
+# every lab graded with otter: the solution scores 100 %, the handed-out notebook 0, each planted mistake
+# loses exactly its question's points (table on stdout, JSON in _build/labs/grading.json)
+check-labs: labs
+	$(BIN)/python labs/check_grading.py
 
 bench: data
 	$(BIN)/python benchmarks/fastslam_mrclam.py
