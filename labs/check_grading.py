@@ -195,10 +195,10 @@ def main(argv=None) -> int:
             if r["crashed"]:
                 cells, total = "".join(f"{'-':>7}" for _ in questions), "crashed"
             else:
-                cells = "".join(f"{r['scores'][q][0]:>7g}" if q in r["scores"] else f"{'-':>7}" for q in questions)
+                cells = "".join(f"{r['scores'][q][0]:>7.4g}" if q in r["scores"] else f"{'-':>7}" for q in questions)
                 got = sum(s for s, _ in r["scores"].values())
                 top = sum(t for _, t in r["scores"].values())
-                total = f"{got:g}/{top:g}"
+                total = f"{got:.4g}/{top:g}"
             verdict = "ok" if not r["problems"] else "FAIL: " + "; ".join(r["problems"])
             failed |= bool(r["problems"])
             print(f"{r['variant']:<22}{cells}{total:>13}  {r['seconds']:>5}  {verdict}"
