@@ -22,6 +22,12 @@ asked, and the minimum too — when other processes compete for the cores, the
 minimum is the better estimate of the intrinsic cost, so the crossover and the
 targets are given from both.
 
+A second, narrower measurement isolates the tree's update (:func:`set_step_cost`):
+resample the M trees (references), then 2 :meth:`LandmarkTree.set` per particle,
+against copying the dense ``mu (M, K, 2)`` and ``sigma (M, K, 2, 2)`` arrays and
+writing the 2 landmarks; its table at K = 10³, 10⁴, 10⁵ gives the tree time, the
+dense time, their ratio (target ≥ 20× at K = 10⁵) and the growth 10³ → 10⁵.
+
 Usage: python benchmarks/landmark_tree.py [--quick] [--out FILE]
 """
 
@@ -38,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ekf_slam_cost import seconds_per_call  # noqa: E402
 from machine import machine_info, machine_line  # noqa: E402
 
 from fastslam_edu.landmark.fastslam import ParticleSet  # noqa: E402
@@ -93,11 +100,7 @@ def step(particles: ParticleSet | TreeParticleSet, indices, keys, z) -> Particle
 
 def seconds_per_step(particles, indices, keys, z, n_steps: int) -> float:
     """Mean wall time of ``n_steps`` calls of :func:`step` (each result dropped at once)."""
-    gc.collect()
-    t0 = time.perf_counter()
-    for _ in range(n_steps):
-        step(particles, indices, keys, z)
-    return (time.perf_counter() - t0) / n_steps
+    return seconds_per_call(lambda: step(particles, indices, keys, z), n_steps)
 
 
 def step_cost(n_landmarks: int, n_particles: int = 100, *, n_updates: int = 2, repeats: int = 5,
@@ -164,6 +167,50 @@ def step_cost(n_landmarks: int, n_particles: int = 100, *, n_updates: int = 2, r
     return out
 
 
+def set_step(trees: list, indices, keys, mu, sigma) -> list:
+    """Resample the trees ``indices`` (references), then ``tree.set(keys[j], mu[m, j], sigma[m, j])`` per particle."""
+    new = [trees[i] for i in indices.tolist()]
+    for m, tree in enumerate(new):
+        for j, k in enumerate(keys):
+            tree = tree.set(k, mu[m, j], sigma[m, j])
+        new[m] = tree
+    return new
+
+
+def dense_set_step(mu_all: np.ndarray, sigma_all: np.ndarray, indices, keys, mu, sigma):
+    """The same on dense arrays: copy ``mu_all[indices]`` (M, K, 2), ``sigma_all[indices]`` (M, K, 2, 2); write."""
+    mu_all, sigma_all = mu_all[indices], sigma_all[indices]
+    mu_all[:, keys], sigma_all[:, keys] = mu, sigma
+    return mu_all, sigma_all
+
+
+def set_step_cost(n_landmarks: int, n_particles: int = 100, *, n_updates: int = 2, repeats: int = 5,
+                  seed: int = 0, min_block_seconds: float = 0.02) -> dict:
+    """Time :func:`set_step` against :func:`dense_set_step` (blocks alternate, as in :func:`step_cost`).
+
+    The new values are fresh (writable) arrays, as a filter's EKF update makes
+    them, so every ``set`` stores a read-only copy of its 2 + 4 floats.
+    Returns ``K, tree_seconds, dense_seconds`` (medians), ``…_min`` and ``speedup`` (dense / tree, medians).
+    """
+    dense, tree, indices, keys, _ = step_world(n_landmarks, n_particles, n_updates, seed)
+    rng = np.random.default_rng(seed + 1)
+    mu = dense.mu[0, keys] + rng.normal(0.0, 0.01, (n_particles, n_updates, 2))
+    sigma = np.broadcast_to(np.eye(2) * 0.005, (n_particles, n_updates, 2, 2)).copy()
+    keys = keys.tolist()
+    calls = {"tree": lambda: set_step(tree.trees, indices, keys, mu, sigma),
+             "dense": lambda: dense_set_step(dense.mu, dense.sigma, indices, keys, mu, sigma)}
+    times = {name: [] for name in calls}
+    block = {name: max(1, int(np.ceil(min_block_seconds / seconds_per_call(call, 1)))) for name, call in calls.items()}
+    for _ in range(int(repeats)):
+        for name, call in calls.items():
+            times[name].append(seconds_per_call(call, block[name]))
+    out = {"K": int(n_landmarks)}
+    for name in calls:
+        out[f"{name}_seconds"], out[f"{name}_seconds_min"] = float(np.median(times[name])), float(min(times[name]))
+    out["speedup"] = out["dense_seconds"] / out["tree_seconds"]
+    return out
+
+
 def crossover_k(rows: list[dict], stat: str = "seconds") -> float | None:
     """The K from which the tree is faster, from :func:`step_cost` results sorted by K.
 
@@ -220,6 +267,21 @@ def plot(rows: list[dict], k_cross: float | None, path: Path) -> None:
     plt.close(fig)
 
 
+def print_set_steps(rows: list[dict]) -> dict:
+    """Print the :func:`set_step_cost` table (K = 10³, 10⁴, 10⁵); return the rows, the growth and the targets."""
+    print(f"\nresample M={M} trees + 2 LandmarkTree.set each, vs copying dense mu, sigma; median (min)")
+    print(f"{'K':>7} {'tree [ms]':>17} {'dense [ms]':>19} {'ratio':>7}")
+    for r in rows:
+        print(f"{r['K']:>7} {r['tree_seconds'] * 1e3:>7.3f} ({r['tree_seconds_min'] * 1e3:>7.3f}) "
+              f"{r['dense_seconds'] * 1e3:>8.3f} ({r['dense_seconds_min'] * 1e3:>8.3f}) {r['speedup']:>6.1f}x")
+    growth = rows[-1]["tree_seconds"] / rows[0]["tree_seconds"]
+    print(f"tree growth K=10³→10⁵: {growth:.2f}x (target ≤ 2x); ratio at K=10⁵: {rows[-1]['speedup']:.1f}x "
+          "(target ≥ 20x)")
+    return {"rows": rows, "tree_growth_1e3_to_1e5": growth,
+            "targets": {"tree_growth_at_most_2x": growth <= 2.0,
+                        "speedup_at_1e5_at_least_20x": rows[-1]["speedup"] >= 20.0}}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="only K = 10², 10³, 10⁴, 3 repeats")
@@ -267,6 +329,9 @@ def main(argv=None) -> int:
               f"dense: {results['dense_growth_1e3_to_1e5']:.0f}x; "
               f"tree speed-up at K=10⁵: {results['speedup_at_1e5']:.0f}x (target ≥ 20x); from minima: "
               f"growth {results['tree_growth_1e3_to_1e5_minima']:.2f}x, speed-up {results['speedup_at_1e5_minima']:.0f}x")
+    if not args.quick:
+        set_rows = [set_step_cost(K, M, repeats=repeats_for(K), min_block_seconds=0.005) for K in K_MAIN[1:]]
+        results["set_step"] = print_set_steps(set_rows)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     png = args.out.with_suffix(".png")
     plot(rows, k_cross, png)

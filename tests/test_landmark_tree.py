@@ -249,6 +249,23 @@ def test_leaves_are_read_only():
         tree.root[0] = None  # nodes are tuples
 
 
+def test_set_keeps_frozen_arrays_by_reference_and_copies_the_others():
+    """Another leaf's read-only arrays are stored as they are; writable arrays or views of them are copied."""
+    tree = LandmarkTree.empty(8).set(2, *value(1.0), count=3)
+    leaf = tree.get(2)
+    moved = tree.set(5, leaf.mu, leaf.sigma, leaf.count + 1).get(5)
+    assert moved.mu is leaf.mu and moved.sigma is leaf.sigma and moved.count == 4
+    mu, sigma = value(2.0)
+    view = mu.view()
+    view.setflags(write=False)  # read-only, but mu can still change it
+    stored = tree.set(5, view, sigma).get(5)
+    assert stored.mu is not view and stored.sigma is not sigma
+    mu[0], sigma[0, 0] = 99.0, 99.0
+    np.testing.assert_array_equal(stored.mu, value(2.0)[0])
+    np.testing.assert_array_equal(stored.sigma, value(2.0)[1])
+    assert tree.set(1, [1, 2], [[1, 0], [0, 1]], np.int64(2)).get(1).count == 2  # ints and NumPy counts accepted
+
+
 @pytest.mark.parametrize("key", [-1, 8, 1.5, "3", None, True, np.float64(2.0)])
 def test_bad_keys_raise(key):
     tree = LandmarkTree.empty(8)
@@ -359,6 +376,19 @@ def test_step_cost_updates_every_landmark_when_k_equals_n_updates(bench):
         bench.step_cost(1, n_particles=5, n_updates=2, repeats=1, min_block_seconds=0.0)
     with pytest.raises(ValueError, match="repeats must be >= 1"):
         bench.step_cost(2, n_particles=5, n_updates=2, repeats=0, min_block_seconds=0.0)
+
+
+def test_set_step_equals_the_dense_set_step(bench):
+    """The two sides of set_step_cost compute the same maps: trees read back as arrays equal the dense copy."""
+    dense, tree, indices, keys, _ = bench.step_world(50, 6, 2, seed=3)
+    mu = np.arange(24, dtype=float).reshape(6, 2, 2)
+    sigma = np.tile(np.eye(2), (6, 2, 1, 1)) * np.arange(1, 13, dtype=float).reshape(6, 2, 1, 1)
+    t_mu, t_sigma, _, _ = trees_to_arrays(bench.set_step(tree.trees, indices, keys.tolist(), mu, sigma))
+    d_mu, d_sigma = bench.dense_set_step(dense.mu, dense.sigma, indices, keys.tolist(), mu, sigma)
+    np.testing.assert_array_equal(t_mu, d_mu)
+    np.testing.assert_array_equal(t_sigma, d_sigma)
+    r = bench.set_step_cost(50, n_particles=6, repeats=1, min_block_seconds=0.0)
+    assert r["K"] == 50 and r["tree_seconds"] > 0 and r["dense_seconds"] > 0
 
 
 def test_crossover_k_ties_and_repeated_k(bench):

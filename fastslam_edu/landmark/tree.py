@@ -47,6 +47,7 @@ share a node agree on every landmark below it, forever.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -77,14 +78,43 @@ def _check_n_landmarks(n_landmarks) -> int:
     return int(n_landmarks)
 
 
-def _path_bits(k: int, depth: int) -> tuple[int, ...]:
-    """The branch (0 = left, 1 = right) taken at each level on the way to key ``k``."""
-    return tuple((k >> level) & 1 for level in range(depth - 1, -1, -1))
+def _path_bits(k: int, depth: int) -> list[int]:
+    """The branch :math:`b_i = \\lfloor k / 2^{d-1-i} \\rfloor \\bmod 2` (0 left, 1 right) at level ``i < d``."""
+    return [k >> shift & 1 for shift in range(depth - 1, -1, -1)]
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
     a.setflags(write=False)
     return a
+
+
+_FLOAT = np.dtype(float)
+
+
+def _is_frozen(a) -> bool:
+    """True for a float64 ndarray that is read-only, and so is every array it is a view of.
+
+    Such an array can be stored in a leaf as it is: no copy is needed, since
+    nothing writes to it by accident (a read-only view of a *writable* array
+    is not frozen: the array it views could still change it).
+    """
+    if type(a) is not np.ndarray or a.dtype is not _FLOAT:
+        return False
+    while type(a) is np.ndarray:
+        if a.flags.writeable:
+            return False
+        a = a.base
+    return a is None
+
+
+def _frozen_or_copy(a):
+    """``a`` itself if :func:`_is_frozen`, else a read-only float copy (None when ``a`` is not numeric)."""
+    if _is_frozen(a):
+        return a
+    try:
+        return _read_only(np.array(a, dtype=float))
+    except (TypeError, ValueError):
+        return None
 
 
 class Landmark(NamedTuple):
@@ -128,6 +158,25 @@ def _leaf_arrays(mu, sigma, count, *, batch: bool, caller: str):
         raise ValueError(f"{caller}: count must be an integer >= 1 (one per landmark), got {count!r}")
     count = np.broadcast_to(c, mu.shape[:-1]).tolist()
     return _read_only(mu), _read_only(sigma), count
+
+
+def _leaf(mu, sigma, count, caller: str) -> Landmark:
+    """The checked leaf ``Landmark(mu, sigma, count)`` for one key: the fast path of :func:`_leaf_arrays`.
+
+    ``mu`` (2,) and ``sigma`` (2, 2) are kept by reference when already
+    frozen (:func:`_is_frozen`, e.g. another leaf's arrays) and copied once
+    otherwise; finiteness is tested on the plain sum
+    :math:`\\sum_i \\mu_i + \\sum_{ij} \\Sigma_{ij}` (NaN or ±inf whenever an entry is).
+    Anything unusual — a wrong shape, a non-finite sum, a count that is not
+    a Python int >= 1 — goes to :func:`_leaf_arrays`, which raises its clear
+    error or converts the rare valid case (a NumPy integer count, a sum that
+    overflows).
+    """
+    m, s = _frozen_or_copy(mu), _frozen_or_copy(sigma)
+    if (m is not None and s is not None and m.shape == (2,) and s.shape == (2, 2)
+            and type(count) is int and count >= 1 and math.isfinite(sum(m.tolist()) + sum(s.ravel().tolist()))):
+        return Landmark(m, s, count)
+    return Landmark(*_leaf_arrays(mu, sigma, count, batch=False, caller=caller))
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -263,8 +312,9 @@ class LandmarkTree:
         Path copying: the new tree gets a new leaf and new copies of the
         :math:`d` internal nodes from the root down to it (:math:`d + 1` new
         nodes); every other subtree is the *same object* as in this tree.
-        Time and memory :math:`O(\\log K)`. ``mu`` and ``sigma`` are copied into
-        read-only arrays.
+        Time and memory :math:`O(\\log K)`. ``mu`` and ``sigma`` are stored as
+        read-only arrays: copied, unless they already are read-only float
+        arrays (such as another leaf's), which are stored by reference.
 
         Raises
         ------
@@ -272,23 +322,30 @@ class LandmarkTree:
             On a key that is not an integer in ``0 … K-1``, ``mu``/``sigma``
             of the wrong shape or with NaN/inf, or a count < 1.
         """
-        k = self._check_key(k)
-        mu, sigma, count = _leaf_arrays(mu, sigma, count, batch=False, caller="LandmarkTree.set")
-        return self._with_leaf(_path_bits(k, self.depth), Landmark(mu, sigma, count))
+        bits = _path_bits(self._check_key(k), self.depth)
+        return self._with_leaf(bits, _leaf(mu, sigma, count, "LandmarkTree.set"))
 
-    def _with_leaf(self, bits: tuple[int, ...], leaf: Landmark) -> "LandmarkTree":
-        """Path copy for a key given by its branch ``bits`` (no checks: for the filter's inner loop)."""
-        above = []  # the old nodes on the path, root first
+    def _with_leaf(self, bits: list[int], leaf: Landmark) -> "LandmarkTree":
+        """Path copy for a key given by its branch ``bits`` (no checks: inputs are checked by the caller).
+
+        Walking down, keep the sibling :math:`s_i` of the path at each level
+        :math:`i` (None below an empty subtree); walking up, the new node at
+        level :math:`i` is ``(new, s_i)`` if :math:`b_i = 0`, else ``(s_i, new)``.
+        """
+        siblings = []
         node = self.root
         for bit in bits:
-            above.append(node)
-            node = None if node is None else node[bit]
-        new = leaf
-        for old, bit in zip(reversed(above), reversed(bits)):  # rebuild the path bottom-up
-            if old is None:
-                new = (new, None) if bit == 0 else (None, new)
+            if node is None:
+                siblings.append(None)
+            elif bit:
+                siblings.append(node[0])
+                node = node[1]
             else:
-                new = (new, old[1]) if bit == 0 else (old[0], new)
+                siblings.append(node[1])
+                node = node[0]
+        new = leaf
+        for bit, sibling in zip(reversed(bits), reversed(siblings)):  # rebuild the path bottom-up
+            new = (sibling, new) if bit else (new, sibling)
         return LandmarkTree(new, self.n_landmarks, self.depth, self.size + (node is None))
 
     def __repr__(self) -> str:
