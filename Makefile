@@ -18,7 +18,7 @@ LAB_ARGS ?=
 MATH_PAGE ?= _build/html/notebooks/04_one_landmark_ekf.html
 CHROMIUM ?= chromium
 
-.PHONY: venv lab-venv grading-venv labs check-labs data book book-force book-strict test test-package test-notebooks lab check-math bench clean
+.PHONY: venv lab-venv grading-venv labs check-labs data book book-force book-strict book-student check-student test test-package test-notebooks lab check-math bench clean
 
 $(BIN)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -59,6 +59,18 @@ book-force: data
 book-strict: data
 	rm -rf _build/.jupyter_cache
 	$(BIN)/jupyter-book build . --path-output . --all -W -n --keep-going
+
+# the student edition: the same book with every solution left out (sphinx-exercise's hide_solutions), into
+# _build/student/html; it reuses the notebooks' executions of `make book` (the same jupyter-cache)
+book-student: data
+	$(BIN)/python book/student_edition.py config _build/student/_config.yml
+	rm -rf _build/student/html _build/student/_build
+	$(BIN)/jupyter-book build . --config _build/student/_config.yml --path-output _build/student $(STUDENT_ARGS)
+	mv _build/student/_build/html _build/student/html
+
+# no solution text in the student edition, while the self-learner's book shows it
+check-student: book-student
+	$(BIN)/python book/student_edition.py check _build/student/html _build/html
 
 test: test-package test-notebooks
 

@@ -191,3 +191,40 @@ def test_chapter_map_draws_every_chapter_and_dependency():
     outlined = [b for b in boxes if b.get_bbox_patch().get_linewidth() > 2]
     assert len(outlined) == sum(len(c) for c in PATHS["three lectures"].values())
     plt.close(fig)
+
+
+#: notation that book/notation.md retired, in the landmark chapters' prose: (pattern, what to write instead)
+RETIRED_NOTATION = [
+    (re.compile(r"h\([^()$]*,\s*m\)"), r"h(x, \mathbf{l}): the landmark position is l, m is the particle index"),
+    (re.compile(r"(?<![A-Za-z\\])m_(?:\{?[jkn1K]\b)"), r"\mathbf{l}_k: the landmark position is l"),
+    (re.compile(r"\\,?d\s?m\b|\\mathrm\{d\}\s?m\b"), r"d\mathbf{l}"),
+    (re.compile(r"\bG_t\b|\bG_x\b|G_\{t\}|G_\{x\}"), "F (motion Jacobian) or H_x (pose Jacobian of h)"),
+    (re.compile(r"\bK_t\b"), "K (the gain; the landmark count is N)"),
+    (re.compile(r"\$K\$ landmarks|O\(M\s*\\?log\s*K\)|O\(K\^?2\)"), "N for the landmark count"),
+]
+LANDMARK_CHAPTERS = [c for c in CHAPTERS if c not in ("14_occupancy_grid", "15_grid_slam", "16_thor_humanoid")]
+
+
+@pytest.mark.parametrize("name", LANDMARK_CHAPTERS)
+def test_notation_is_the_notation_page(name):
+    for i, cell in enumerate(cells(name)):
+        if cell["cell_type"] != "markdown":
+            continue
+        for pattern, instead in RETIRED_NOTATION:
+            hit = pattern.search(text(cell))
+            assert not hit, f"{name}, cell {i}: {hit.group(0)!r} (book/notation.md: {instead})"
+
+
+def test_the_notation_page_defines_the_symbols_the_chapters_use():
+    page = (ROOT / "book" / "notation.md").read_text()
+    for symbol in (r"\mathbf{l}_k", r"h(x, \mathbf{l})", r"K = \Sigma H^\top Q^{-1}", r"H_x", r"G = \partial h^{-1}",
+                   r"F = \partial g", r"k = 1, \dots, N", r"m = 1, \dots, M"):
+        assert symbol in page, f"book/notation.md does not define {symbol}"
+
+
+@pytest.mark.parametrize("name", [c for c in CHAPTERS if c not in PARTS[WRITEUPS_PART]])
+def test_the_write_ups_stay_in_their_part(name):
+    # the word in the prose ({doc} links to the write-up chapters are links, not the word)
+    count = sum(len(re.findall(r"write-ups?", DOC_LINK.sub(" ", text(c)), re.I))
+                for c in cells(name) if c["cell_type"] == "markdown")
+    assert count <= 1, f"{name}: 'write-up' {count} times in the prose (at most once outside {WRITEUPS_PART!r})"

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 from matplotlib.patches import Patch
 from matplotlib.figure import Figure
 
-__all__ = ["CHAPTERS", "PREREQUISITES", "PATHS", "PARTS", "chapter_number", "check_path", "draw_chapter_map"]
+__all__ = ["CHAPTERS", "PREREQUISITES", "PATHS", "PARTS", "WRITEUPS_PART", "LECTURE_PLAN", "chapter_number", "check_path", "draw_chapter_map"]
 
 #: The chapters in reading order: notebook name -> short title.
 CHAPTERS: dict[str, str] = {
@@ -92,6 +92,27 @@ PATHS: dict[str, dict[str, tuple[str, ...]]] = {
     },
     "full course": {f"week {i + 1}": pair for i, pair in enumerate(
         tuple(tuple(list(CHAPTERS)[j:j + 2]) for j in range(0, len(CHAPTERS), 2)))},
+}
+
+
+#: The three-lecture path, per lecture: the graded lab that follows it (``labs/<lab>/``) and what the instructor
+#: shows live in class (each a figure or a run a chapter computes).
+LECTURE_PLAN: dict[str, dict[str, str]] = {
+    "lecture 1: the two models and one landmark's EKF": {
+        "lab": "lab1_models",
+        "live": "the banana of sampled poses with the noise sliders (ch. 2); a sighting's ellipse through h⁻¹ (ch. 3); "
+                "thirty sightings shrinking one landmark's EKF, checked against filterpy (ch. 4)",
+    },
+    "lecture 2: weights, resampling, the whole filter": {
+        "lab": "lab2_landmarks",
+        "live": "N_eff falling and the log-sum-exp fix (ch. 6); the four resamplers' offspring counts (ch. 7); "
+                "the first minute of robot 2 step by step, then the animation (ch. 8)",
+    },
+    "lecture 3: on real data": {
+        "lab": "lab3_fastslam",
+        "live": "the ablation from the textbook filter to the real-data one (ch. 9); the full run's map and path "
+                "against groundtruth, raw and aligned (ch. 10)",
+    },
 }
 
 
