@@ -60,7 +60,7 @@ book-strict: data
 	rm -rf _build/.jupyter_cache
 	$(BIN)/jupyter-book build . --path-output . --all -W -n --keep-going
 
-# the student edition: the same book with every solution left out (sphinx-exercise's hide_solutions), into
+# the student edition: the same book with every solution left out (book/student_edition.py as a Sphinx extension), into
 # _build/student/html; it reuses the notebooks' executions of `make book` (the same jupyter-cache)
 book-student: data
 	$(BIN)/python book/student_edition.py config _build/student/_config.yml

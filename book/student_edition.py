@@ -3,9 +3,11 @@
     python book/student_edition.py config OUT.yml     # write the student edition's _config.yml to OUT.yml
     python book/student_edition.py check STUDENT_HTML BOOK_HTML
 
-``config`` copies ``_config.yml`` and adds sphinx-exercise's ``hide_solutions`` (the ``solution`` directives and
-everything between ``solution-start`` and ``solution-end`` are dropped from the output), and points the execution
-cache at the self-learner's book's (``_build/.jupyter_cache``), so that the notebooks run once for both editions.
+``config`` copies ``_config.yml``, adds this file as a Sphinx extension (``setup`` below: every ``solution``
+block and everything between ``solution-start`` and ``solution-end`` is dropped from the output), and points the
+execution cache at the self-learner's book's (``_build/.jupyter_cache``), so that the notebooks run once for both
+editions. sphinx-exercise's own ``hide_solutions`` is not used: it drops the ``solution-start`` marker but keeps
+the gated solution's cells and leaves an orphan ``solution-end`` node that the HTML writer rejects (1.2.1).
 
 ``check`` reads every chapter's solutions from the notebooks (their code lines and the prose inside the solution
 blocks) and fails, naming the page and the line, if any of them is in the student edition's HTML; it also checks
@@ -21,6 +23,9 @@ import sys
 from pathlib import Path
 
 import yaml
+from sphinx.errors import ExtensionError
+from sphinx.transforms import SphinxTransform
+from sphinx_exercise.nodes import solution_end_node, solution_node, solution_start_node
 
 ROOT = Path(__file__).resolve().parents[1]
 MIN_LENGTH = 30  # lines shorter than this are too generic to identify a solution ("plt.show()")
@@ -28,30 +33,66 @@ MIN_LENGTH = 30  # lines shorter than this are too generic to identify a solutio
 
 def write_config(out: Path) -> None:
     config = yaml.safe_load((ROOT / "_config.yml").read_text())
-    config.setdefault("sphinx", {}).setdefault("config", {})["hide_solutions"] = True
+    config.setdefault("sphinx", {}).setdefault("local_extensions", {})["student_edition"] = str(ROOT / "book")
     config.setdefault("execute", {})["cache"] = str(ROOT / "_build" / ".jupyter_cache")
     config["title"] = f"{config.get('title', '')} (student edition)"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(yaml.safe_dump(config, sort_keys=False, allow_unicode=True))
 
 
-def solution_lines(notebook: Path) -> list[str]:
-    """Distinctive lines of the solutions of ``notebook``: code lines and prose lines inside solution blocks."""
-    lines, inside = [], False
+class DropSolutions(SphinxTransform):
+    """Remove every solution from the doctree, gated ones (``solution-start`` … ``solution-end``) included.
+
+    Runs before sphinx-exercise merges the gated markers (priority 10), so both forms are still visible.
+    """
+
+    default_priority = 5
+
+    def apply(self, **kwargs) -> None:
+        for node in list(self.document.findall(solution_node)):
+            node.parent.remove(node)
+        for start in list(self.document.findall(solution_start_node)):
+            parent = start.parent
+            first = parent.index(start)
+            ends = [i for i, child in enumerate(parent.children)
+                    if i > first and isinstance(child, solution_end_node)]
+            if not ends:
+                raise ExtensionError(f"{self.env.docname}: a solution-start without its solution-end")
+            for child in parent.children[first:ends[0] + 1]:
+                parent.remove(child)
+
+
+def setup(app):
+    """Sphinx entry point: the student edition's build loads this file as an extension."""
+    app.add_transform(DropSolutions)
+    return {"parallel_read_safe": True, "parallel_write_safe": True}
+
+
+def split_lines(notebook: Path) -> tuple[list[str], set[str]]:
+    """The stripped lines of ``notebook``: those inside solution blocks, and the set of those outside them."""
+    inside_lines, outside_lines, inside = [], set(), False
     for cell in json.loads(notebook.read_text())["cells"]:
         source = "".join(cell["source"])
         if cell["cell_type"] == "markdown" and "{solution-start}" in source:
-            inside = True
-            source = source.split("{solution-start}", 1)[1].split("\n", 1)[-1]
-        if inside:
-            body = source.split("{solution-end}")[0] if "{solution-end}" in source else source
-            for line in body.splitlines():
-                line = line.strip()
-                if len(line) >= MIN_LENGTH and not line.startswith((":", "`", "#", "$", "|")) and "`" not in line:
-                    lines.append(line)
+            before, source = source.split("{solution-start}", 1)
+            outside_lines.update(line.strip() for line in before.splitlines())
+            inside, source = True, source.split("\n", 1)[-1]
+        body, after = (source.split("{solution-end}", 1) + [""])[:2] if inside else ("", source)
+        inside_lines += [line.strip() for line in body.splitlines()]
+        outside_lines.update(line.strip() for line in after.splitlines())
         if cell["cell_type"] == "markdown" and "{solution-end}" in source:
             inside = False
-    return lines
+    return inside_lines, outside_lines
+
+
+def solution_lines(notebook: Path) -> list[str]:
+    """Distinctive lines found only in the solutions of ``notebook``: code and prose inside solution blocks, not
+    found in the rest of the notebook (an exercise's starter code repeats the solution's first lines)."""
+    inside, outside = split_lines(notebook)
+    rest = " ".join(" ".join(line.split()) for line in outside)
+    return [line for line in inside
+            if len(line) >= MIN_LENGTH and " ".join(line.split()) not in rest
+            and not line.startswith((":", "`", "#", "$", "|")) and "`" not in line]
 
 
 def page_text(page: Path) -> str:
