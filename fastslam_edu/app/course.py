@@ -25,17 +25,19 @@ CHAPTERS: dict[str, str] = {
     "07_resampling": "Resampling",
     "08_putting_it_together": "Putting it together",
     "09_textbook_to_real_data": "From textbook to real data",
-    "10_fastslam_on_mrclam": "FastSLAM 1.0 on MR.CLAM",
-    "11_fastslam2_proposal": "FastSLAM 2.0's proposal",
-    "12_consistency": "Is the uncertainty honest?",
-    "13_landmark_tree": "The tree trick",
-    "14_occupancy_grid": "Occupancy grids",
-    "15_grid_slam": "Grid SLAM",
-    "16_thor_humanoid": "SLAM on a humanoid (THOR)",
-    "17_hidden_barcodes": "When the barcodes are hidden",
-    "18_writeup_models": "The write-up's data and models",
-    "19_writeup_filter": "The write-up's filter",
-    "20_writeup_experiments": "The write-up's experiments",
+    "10_graph_slam": "Graph SLAM: the whole log at once",
+    "11_five_robots": "Five robots, one map",
+    "12_fastslam_on_mrclam": "FastSLAM 1.0 on MR.CLAM",
+    "13_fastslam2_proposal": "FastSLAM 2.0's proposal",
+    "14_consistency": "Is the uncertainty honest?",
+    "15_landmark_tree": "The tree trick",
+    "16_occupancy_grid": "Occupancy grids",
+    "17_grid_slam": "Grid SLAM",
+    "18_thor_humanoid": "SLAM on a humanoid (THOR)",
+    "19_hidden_barcodes": "When the barcodes are hidden",
+    "20_writeup_models": "The write-up's data and models",
+    "21_writeup_filter": "The write-up's filter",
+    "22_writeup_experiments": "The write-up's experiments",
 }
 
 #: Chapter -> the chapters it builds on directly (each of them comes earlier).
@@ -49,17 +51,19 @@ PREREQUISITES: dict[str, tuple[str, ...]] = {
     "07_resampling": ("06_importance_weights",),
     "08_putting_it_together": ("02_motion_model", "07_resampling"),
     "09_textbook_to_real_data": ("08_putting_it_together",),
-    "10_fastslam_on_mrclam": ("09_textbook_to_real_data",),
-    "11_fastslam2_proposal": ("10_fastslam_on_mrclam",),
-    "12_consistency": ("05_ekf_slam", "10_fastslam_on_mrclam"),
-    "13_landmark_tree": ("08_putting_it_together",),
-    "14_occupancy_grid": ("02_motion_model",),
-    "15_grid_slam": ("07_resampling", "14_occupancy_grid"),
-    "16_thor_humanoid": ("15_grid_slam",),
-    "17_hidden_barcodes": ("05_ekf_slam", "10_fastslam_on_mrclam"),
-    "18_writeup_models": ("01_mrclam_data", "03_measurement_model"),
-    "19_writeup_filter": ("08_putting_it_together",),
-    "20_writeup_experiments": ("09_textbook_to_real_data",),
+    "10_graph_slam": ("05_ekf_slam", "08_putting_it_together"),
+    "11_five_robots": ("10_graph_slam",),
+    "12_fastslam_on_mrclam": ("09_textbook_to_real_data",),
+    "13_fastslam2_proposal": ("12_fastslam_on_mrclam",),
+    "14_consistency": ("05_ekf_slam", "10_graph_slam", "12_fastslam_on_mrclam"),
+    "15_landmark_tree": ("08_putting_it_together",),
+    "16_occupancy_grid": ("02_motion_model",),
+    "17_grid_slam": ("07_resampling", "16_occupancy_grid"),
+    "18_thor_humanoid": ("17_grid_slam",),
+    "19_hidden_barcodes": ("05_ekf_slam", "12_fastslam_on_mrclam"),
+    "20_writeup_models": ("01_mrclam_data", "03_measurement_model"),
+    "21_writeup_filter": ("08_putting_it_together",),
+    "22_writeup_experiments": ("09_textbook_to_real_data",),
 }
 
 #: The book's parts, for the map's columns: caption -> chapters.
@@ -68,12 +72,12 @@ PARTS: dict[str, tuple[str, ...]] = {
     "FastSLAM 1.0, one equation at a time": ("02_motion_model", "03_measurement_model", "04_one_landmark_ekf",
                                              "05_ekf_slam", "06_importance_weights", "07_resampling",
                                              "08_putting_it_together"),
-    "Landmark SLAM on MR.CLAM": ("09_textbook_to_real_data", "10_fastslam_on_mrclam",
-                                "11_fastslam2_proposal", "12_consistency"),
-    "The tree trick": ("13_landmark_tree",),
-    "Grid SLAM with LiDAR": ("14_occupancy_grid", "15_grid_slam", "16_thor_humanoid"),
-    "Beyond FastSLAM": ("17_hidden_barcodes",),
-    "Reproducing the write-ups": ("18_writeup_models", "19_writeup_filter", "20_writeup_experiments"),
+    "Landmark SLAM on MR.CLAM": ("09_textbook_to_real_data", "10_graph_slam", "11_five_robots",
+                                "12_fastslam_on_mrclam", "13_fastslam2_proposal", "14_consistency"),
+    "The tree trick": ("15_landmark_tree",),
+    "Grid SLAM with LiDAR": ("16_occupancy_grid", "17_grid_slam", "18_thor_humanoid"),
+    "Beyond FastSLAM": ("19_hidden_barcodes",),
+    "Reproducing the write-ups": ("20_writeup_models", "21_writeup_filter", "22_writeup_experiments"),
 }
 
 #: The part whose chapters examine the published write-ups: any chapter may point to it (a link, not a
@@ -88,7 +92,7 @@ PATHS: dict[str, dict[str, tuple[str, ...]]] = {
                                                             "04_one_landmark_ekf"),
         "lecture 2: weights, resampling, the whole filter": ("06_importance_weights", "07_resampling",
                                                             "08_putting_it_together"),
-        "lecture 3: on real data": ("09_textbook_to_real_data", "10_fastslam_on_mrclam"),
+        "lecture 3: on real data": ("09_textbook_to_real_data", "12_fastslam_on_mrclam"),
     },
     "full course": {f"week {i + 1}": pair for i, pair in enumerate(
         tuple(tuple(list(CHAPTERS)[j:j + 2]) for j in range(0, len(CHAPTERS), 2)))},
@@ -111,7 +115,7 @@ LECTURE_PLAN: dict[str, dict[str, str]] = {
     "lecture 3: on real data": {
         "lab": "lab3_fastslam",
         "live": "the ablation from the textbook filter to the real-data one (ch. 9); the full run's map and path "
-                "against groundtruth, raw and aligned (ch. 10)",
+                "against groundtruth, raw and aligned (ch. 12)",
     },
 }
 
