@@ -309,7 +309,7 @@ def test_bad_sizes_raise(K):
 
 def test_bulk_functions_reject_mismatches():
     trees = [LandmarkTree.empty(8), LandmarkTree.empty(9)]
-    with pytest.raises(ValueError, match="K = 8"):
+    with pytest.raises(ValueError, match="N = 8"):
         gather(trees, [0])
     with pytest.raises(ValueError, match="rows"):
         set_each([LandmarkTree.empty(8)] * 3, 0, np.zeros((2, 2)), np.tile(np.eye(2), (2, 1, 1)))

@@ -1,8 +1,8 @@
 """FastSLAM 1.0 with each particle's landmarks in a :class:`~fastslam_edu.landmark.tree.LandmarkTree`.
 
 The array engine (:mod:`fastslam_edu.landmark.fastslam`) keeps the map of all particles
-in dense arrays ``mu (M, K, 2)``, ``sigma (M, K, 2, 2)``; resampling copies
-them with fancy indexing — :math:`O(MK)` per resampling step, whatever the
+in dense arrays ``mu (M, N, 2)``, ``sigma (M, N, 2, 2)``; resampling copies
+them with fancy indexing — :math:`O(MN)` per resampling step, whatever the
 number of landmarks seen. Here (Montemerlo et al. 2002, section 4):
 
 =========  ======================  ==========================================
@@ -13,7 +13,7 @@ logw       (M,) array              :math:`\\log w^{[m]}`
 
 * **resampling** copies tree *references*: :math:`O(M)`;
 * **updating** landmark :math:`k` in particle :math:`m` path-copies
-  :math:`\\lceil \\log_2 K \\rceil + 1` nodes: :math:`O(M \\log K)` per measurement;
+  :math:`\\lceil \\log_2 N \\rceil + 1` nodes: :math:`O(M \\log N)` per measurement;
 * the EKF arithmetic itself is the array engine's: the few landmarks measured
   at an instant are read out of the trees (:func:`~fastslam_edu.landmark.tree.gather`),
   updated by :func:`fastslam_edu.landmark.fastslam.update_with_sightings` (the compiled
@@ -27,12 +27,12 @@ same function (batched distinct landmarks, a landmark seen twice in a second
 round, range-dependent :math:`R`, the robust gate), so for the same seed it
 gives the same path and map.
 
-The constants differ in kind: resampling dense arrays copies :math:`MK`
+The constants differ in kind: resampling dense arrays copies :math:`MN`
 landmark filters in a few C calls, while the tree creates and walks Python
 objects, one per node. So for a small map such as MR.CLAM's 15 landmarks the
-array engine is faster, and the tree wins only from some :math:`K` on that
+array engine is faster, and the tree wins only from some :math:`N` on that
 depends on the machine; ``benchmarks/landmark_tree.py`` measures both (see
-the chapter "Why FastSLAM is O(M log K)").
+the chapter "Why FastSLAM is O(M log N)").
 """
 
 from __future__ import annotations
@@ -96,7 +96,7 @@ class TreeParticleSet:
     def select(self, indices) -> "TreeParticleSet":
         """Particles ``indices`` as a new set, uniform weights: the **trees are shared, not copied**.
 
-        :math:`O(M)` whatever :math:`K`: offspring of one parent hold the same
+        :math:`O(M)` whatever :math:`N`: offspring of one parent hold the same
         tree object, which is safe because a tree is never modified — an
         update builds a new tree (:meth:`LandmarkTree.set`).
         """
@@ -106,9 +106,9 @@ class TreeParticleSet:
         )
 
     def with_known_map(self, landmarks) -> "TreeParticleSet":
-        """Every particle holding one shared tree of the known landmarks ``(K, 2)`` (localisation)."""
-        K = len(landmarks)
-        known = LandmarkTree.from_arrays(landmarks, np.tile(np.eye(2) * 1e-6, (K, 1, 1)), count=np.ones(K, int))
+        """Every particle holding one shared tree of the known landmarks ``(N, 2)`` (localisation)."""
+        N = len(landmarks)
+        known = LandmarkTree.from_arrays(landmarks, np.tile(np.eye(2) * 1e-6, (N, 1, 1)), count=np.ones(N, int))
         self.trees = [known] * len(self)
         return self
 
@@ -119,7 +119,7 @@ class TreeParticleSet:
         return update_trees_with_sightings(self, sightings, gate_chi2=gate_chi2, update_map=update_map)
 
     def to_particle_set(self) -> ParticleSet:
-        """The same particles as a dense :class:`~fastslam_edu.landmark.fastslam.ParticleSet` (:math:`O(MK)`)."""
+        """The same particles as a dense :class:`~fastslam_edu.landmark.fastslam.ParticleSet` (:math:`O(MN)`)."""
         mu, sigma, seen, count = trees_to_arrays(self.trees)
         return ParticleSet(poses=self.poses.copy(), mu=mu, sigma=sigma, seen=seen, logw=self.logw.copy(),
                            count=count)
@@ -134,14 +134,14 @@ def update_trees_with_sightings(particles: TreeParticleSet, sightings, *, gate_c
 
     1. **Read** the :math:`n' \\le n` distinct landmarks measured out of every
        particle's tree (:func:`~fastslam_edu.landmark.tree.gather`,
-       :math:`O(M n' \\log K)`) into a small :class:`~fastslam_edu.landmark.fastslam.ParticleSet`
+       :math:`O(M n' \\log N)`) into a small :class:`~fastslam_edu.landmark.fastslam.ParticleSet`
        of :math:`n'` landmarks, which shares ``poses`` and ``logw`` with ``particles``.
     2. **Update** it with the array engine's own
        :func:`~fastslam_edu.landmark.fastslam.update_with_sightings` — initialisation,
        EKF update, weights, robust gate: the same numbers, by construction.
     3. **Write back** each landmark that changed in a particle (mean, covariance,
        seen or count) by path copying (:func:`~fastslam_edu.landmark.tree.set_each`,
-       :math:`O(\\log K)` each); a particle whose landmark did not change (an
+       :math:`O(\\log N)` each); a particle whose landmark did not change (an
        outlier for it, or a known map) keeps its tree.
 
     Returns a bool (n,): False where no particle explains the measurement

@@ -1,32 +1,32 @@
-"""A persistent balanced binary tree of landmark filters: FastSLAM's O(M log K) map.
+"""A persistent balanced binary tree of landmark filters: FastSLAM's O(M log N) map.
 
 Why a tree
 ----------
 A FastSLAM particle carries one 2×2 EKF :math:`(\\mu_k^{[m]}, \\Sigma_k^{[m]})` per
-landmark, :math:`k = 0 \\dots K-1`. Resampling draws :math:`M` particles with
+landmark, :math:`k = 0 \\dots N-1`. Resampling draws :math:`M` particles with
 replacement, so a parent with several offspring must be *copied*: each offspring
 will update its own landmarks afterwards. Copying dense arrays costs
-:math:`O(K)` per particle, :math:`O(MK)` per step, although a measurement step
+:math:`O(N)` per particle, :math:`O(MN)` per step, although a measurement step
 changes only the few landmarks it sees. Montemerlo et al. (2002, section 4)
 store each particle's landmarks in a balanced binary tree instead and copy
 **only the path** to a changed leaf:
 
 * resampling copies a *reference* to the parent's tree: :math:`O(1)` per particle;
 * updating landmark :math:`k` builds a new leaf and new copies of the
-  :math:`\\lceil \\log_2 K \\rceil` internal nodes above it; every subtree off the
-  path is shared with the old tree: :math:`O(\\log K)` per particle;
-* reading landmark :math:`k` walks :math:`\\lceil \\log_2 K \\rceil` levels.
+  :math:`\\lceil \\log_2 N \\rceil` internal nodes above it; every subtree off the
+  path is shared with the old tree: :math:`O(\\log N)` per particle;
+* reading landmark :math:`k` walks :math:`\\lceil \\log_2 N \\rceil` levels.
 
-One step then costs :math:`O(M \\log K)` instead of :math:`O(MK)`, and memory
-grows by :math:`O(M \\log K)` nodes per step instead of :math:`O(MK)` floats.
+One step then costs :math:`O(M \\log N)` instead of :math:`O(MN)`, and memory
+grows by :math:`O(M \\log N)` nodes per step instead of :math:`O(MN)` floats.
 
 Shape of the tree
 -----------------
-Landmark indices are known in advance (``0 … K-1``), so no rebalancing is
+Landmark indices are known in advance (``0 … N-1``), so no rebalancing is
 needed (the notes' C++ used a red–black tree because their keys arrive in any
 order): the tree is the *complete* binary tree over ``0 … 2^d - 1`` with
-depth :math:`d = \\lceil \\log_2 K \\rceil`. The path to key ``k`` is spelled by
-its binary digits, most significant first: 0 = left, 1 = right. For ``K = 8``
+depth :math:`d = \\lceil \\log_2 N \\rceil`. The path to key ``k`` is spelled by
+its binary digits, most significant first: 0 = left, 1 = right. For ``N = 8``
 and ``k = 5 = 101₂``: right, left, right.
 
 Representation (immutable, so sharing is safe)
@@ -68,13 +68,13 @@ __all__ = [
 
 
 def tree_depth(n_landmarks: int) -> int:
-    """Depth :math:`d = \\lceil \\log_2 K \\rceil` of the complete tree over ``0 … K-1`` (0 for K = 1)."""
+    """Depth :math:`d = \\lceil \\log_2 N \\rceil` of the complete tree over ``0 … N-1`` (0 for N = 1)."""
     return (int(n_landmarks) - 1).bit_length()
 
 
 def _check_n_landmarks(n_landmarks) -> int:
     if isinstance(n_landmarks, bool) or not isinstance(n_landmarks, (int, np.integer)) or n_landmarks < 1:
-        raise ValueError(f"the number of landmarks K must be an integer >= 1, got {n_landmarks!r}")
+        raise ValueError(f"the number of landmarks N must be an integer >= 1, got {n_landmarks!r}")
     return int(n_landmarks)
 
 
@@ -181,20 +181,20 @@ def _leaf(mu, sigma, count, caller: str) -> Landmark:
 
 @dataclass(frozen=True, slots=True, eq=False)
 class LandmarkTree:
-    """The landmarks of one particle: a persistent complete binary tree keyed by ``0 … K-1``.
+    """The landmarks of one particle: a persistent complete binary tree keyed by ``0 … N-1``.
 
     Build one with :meth:`empty` or :meth:`from_arrays`; :meth:`set` returns a
     *new* tree and leaves this one unchanged. All operations on one key cost
-    :math:`O(\\log K)`.
+    :math:`O(\\log N)`.
 
     Attributes
     ----------
     root : tuple or None
         The root node (see the module docstring), None when no landmark is stored.
     n_landmarks : int
-        :math:`K`, the number of valid keys.
+        :math:`N`, the number of valid keys.
     depth : int
-        :math:`d = \\lceil \\log_2 K \\rceil`: a leaf is ``depth`` steps below the root.
+        :math:`d = \\lceil \\log_2 N \\rceil`: a leaf is ``depth`` steps below the root.
     size : int
         Number of landmarks stored (``len(tree)``).
     """
@@ -208,38 +208,38 @@ class LandmarkTree:
 
     @classmethod
     def empty(cls, n_landmarks: int) -> "LandmarkTree":
-        """A tree for keys ``0 … K-1`` holding no landmark (root None): :math:`O(1)`."""
-        K = _check_n_landmarks(n_landmarks)
-        return cls(None, K, tree_depth(K), 0)
+        """A tree for keys ``0 … N-1`` holding no landmark (root None): :math:`O(1)`."""
+        N = _check_n_landmarks(n_landmarks)
+        return cls(None, N, tree_depth(N), 0)
 
     @classmethod
     def from_arrays(cls, mu, sigma, seen=None, count=None) -> "LandmarkTree":
-        """A tree holding landmark ``k`` for every ``k`` with ``seen[k]``, built bottom-up in :math:`O(K)`.
+        """A tree holding landmark ``k`` for every ``k`` with ``seen[k]``, built bottom-up in :math:`O(N)`.
 
         Parameters
         ----------
-        mu : array_like, shape (K, 2)
+        mu : array_like, shape (N, 2)
             Landmark means :math:`\\mu_k` [m].
-        sigma : array_like, shape (K, 2, 2)
+        sigma : array_like, shape (N, 2, 2)
             Landmark covariances :math:`\\Sigma_k` [m²].
-        seen : array_like of bool, shape (K,), optional
+        seen : array_like of bool, shape (N,), optional
             Which landmarks to store (default: all).
-        count : array_like of int, shape (K,), optional
+        count : array_like of int, shape (N,), optional
             Sightings used per landmark (default 1).
         """
         mu, sigma, count = _leaf_arrays(mu, sigma, 1 if count is None else count, batch=True,
                                         caller="LandmarkTree.from_arrays")
-        K = _check_n_landmarks(len(mu))
-        seen = np.ones(K, dtype=bool) if seen is None else np.asarray(seen)
-        if seen.shape != (K,) or seen.dtype != bool:
-            raise ValueError(f"LandmarkTree.from_arrays: seen must be a bool array of shape ({K},), got "
+        N = _check_n_landmarks(len(mu))
+        seen = np.ones(N, dtype=bool) if seen is None else np.asarray(seen)
+        if seen.shape != (N,) or seen.dtype != bool:
+            raise ValueError(f"LandmarkTree.from_arrays: seen must be a bool array of shape ({N},), got "
                              f"{seen.dtype} {seen.shape}")
-        depth = tree_depth(K)
-        level: list = [Landmark(mu[k], sigma[k], count[k]) if seen[k] else None for k in range(K)]
-        level += [None] * ((1 << depth) - K)
+        depth = tree_depth(N)
+        level: list = [Landmark(mu[k], sigma[k], count[k]) if seen[k] else None for k in range(N)]
+        level += [None] * ((1 << depth) - N)
         for _ in range(depth):  # pair up children into parents, one level at a time
             level = [None if a is None and b is None else (a, b) for a, b in zip(level[0::2], level[1::2])]
-        return cls(level[0], K, depth, int(seen.sum()))
+        return cls(level[0], N, depth, int(seen.sum()))
 
     # ------------------------------------------------------------ queries
 
@@ -249,13 +249,13 @@ class LandmarkTree:
                 raise ValueError(f"landmark index must be an integer, got {k!r} ({type(k).__name__})")
             k = int(k)
         if not 0 <= k < self.n_landmarks:
-            raise ValueError(f"landmark index {k} outside 0 … {self.n_landmarks - 1} (K = {self.n_landmarks})")
+            raise ValueError(f"landmark index {k} outside 0 … {self.n_landmarks - 1} (N = {self.n_landmarks})")
         return k
 
     def get(self, k: int) -> Landmark | None:
         """The :class:`Landmark` ``(mu, sigma, count)`` stored at ``k`` (read-only arrays), or None.
 
-        Walks :math:`d = \\lceil \\log_2 K \\rceil` levels: :math:`O(\\log K)`.
+        Walks :math:`d = \\lceil \\log_2 N \\rceil` levels: :math:`O(\\log N)`.
         """
         node = self.root
         for bit in _path_bits(self._check_key(k), self.depth):
@@ -271,7 +271,7 @@ class LandmarkTree:
         return self.size
 
     def items(self) -> Iterator[tuple[int, Landmark]]:
-        """``(k, landmark)`` for every stored landmark, in index order: :math:`O(K)`."""
+        """``(k, landmark)`` for every stored landmark, in index order: :math:`O(N)`."""
 
         def walk(node, first: int, level: int):
             if node is None:
@@ -312,14 +312,14 @@ class LandmarkTree:
         Path copying: the new tree gets a new leaf and new copies of the
         :math:`d` internal nodes from the root down to it (:math:`d + 1` new
         nodes); every other subtree is the *same object* as in this tree.
-        Time and memory :math:`O(\\log K)`. ``mu`` and ``sigma`` are stored as
+        Time and memory :math:`O(\\log N)`. ``mu`` and ``sigma`` are stored as
         read-only arrays: copied, unless they already are read-only float
         arrays (such as another leaf's), which are stored by reference.
 
         Raises
         ------
         ValueError
-            On a key that is not an integer in ``0 … K-1``, ``mu``/``sigma``
+            On a key that is not an integer in ``0 … N-1``, ``mu``/``sigma``
             of the wrong shape or with NaN/inf, or a count < 1.
         """
         bits = _path_bits(self._check_key(k), self.depth)
@@ -349,7 +349,7 @@ class LandmarkTree:
         return LandmarkTree(new, self.n_landmarks, self.depth, self.size + (node is None))
 
     def __repr__(self) -> str:
-        return f"LandmarkTree(K={self.n_landmarks}, depth={self.depth}, stored={self.size})"
+        return f"LandmarkTree(N={self.n_landmarks}, depth={self.depth}, stored={self.size})"
 
 
 # ---------------------------------------------------------------- node sharing
@@ -379,7 +379,7 @@ def _node_ids(tree: LandmarkTree, into: set[int]) -> int:
 def count_nodes(*trees: LandmarkTree) -> int:
     """Number of *distinct* nodes (internal nodes and leaves) in the given trees, by identity.
 
-    For one tree holding every key of ``K = 2^d`` this is :math:`2K - 1`; for
+    For one tree holding every key of ``N = 2^d`` this is :math:`2K - 1`; for
     :math:`M` trees that share subtrees it is far less than :math:`M(2K-1)`.
     """
     seen: set[int] = set()
@@ -400,7 +400,7 @@ def count_new_nodes(new: Sequence[LandmarkTree], old: Sequence[LandmarkTree]) ->
     """Number of distinct nodes of the trees ``new`` that are in none of the trees ``old``.
 
     The nodes a filter step created and kept: after M particles each update
-    one landmark, :math:`M (\\lceil \\log_2 K \\rceil + 1)`.
+    one landmark, :math:`M (\\lceil \\log_2 N \\rceil + 1)`.
     """
     ids: set[int] = set()
     for t in old:
@@ -414,15 +414,15 @@ def count_new_nodes(new: Sequence[LandmarkTree], old: Sequence[LandmarkTree]) ->
 def _check_trees(trees: Sequence[LandmarkTree], caller: str) -> tuple[int, int]:
     if len(trees) == 0:
         raise ValueError(f"{caller}: no trees given")
-    K, depth = trees[0].n_landmarks, trees[0].depth
+    N, depth = trees[0].n_landmarks, trees[0].depth
     for m, t in enumerate(trees):
-        if not isinstance(t, LandmarkTree) or t.n_landmarks != K:
-            raise ValueError(f"{caller}: trees[{m}] is {t!r}; expected a LandmarkTree with K = {K}")
-    return K, depth
+        if not isinstance(t, LandmarkTree) or t.n_landmarks != N:
+            raise ValueError(f"{caller}: trees[{m}] is {t!r}; expected a LandmarkTree with N = {N}")
+    return N, depth
 
 
 def gather(trees: Sequence[LandmarkTree], keys) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Landmarks ``keys`` (n,) of each of the M particles' trees, as arrays: :math:`O(M n \\log K)`.
+    """Landmarks ``keys`` (n,) of each of the M particles' trees, as arrays: :math:`O(M n \\log N)`.
 
     Returns
     -------
@@ -434,7 +434,7 @@ def gather(trees: Sequence[LandmarkTree], keys) -> tuple[np.ndarray, np.ndarray,
     count : ndarray of int64, shape (M, n)
         Sightings used; 0 where not stored.
     """
-    K, depth = _check_trees(trees, "gather")
+    N, depth = _check_trees(trees, "gather")
     paths = [_path_bits(trees[0]._check_key(k), depth) for k in np.atleast_1d(np.asarray(keys)).tolist()]
     leaves = []
     for t in trees:
@@ -464,7 +464,7 @@ def gather(trees: Sequence[LandmarkTree], keys) -> tuple[np.ndarray, np.ndarray,
 
 
 def set_each(trees: Sequence[LandmarkTree], k: int, mu, sigma, count=1, which=None) -> list[LandmarkTree]:
-    """``[trees[m].set(k, mu[m], sigma[m], count[m]) …]`` for the M particles: :math:`O(M \\log K)`.
+    """``[trees[m].set(k, mu[m], sigma[m], count[m]) …]`` for the M particles: :math:`O(M \\log N)`.
 
     Parameters
     ----------
@@ -485,7 +485,7 @@ def set_each(trees: Sequence[LandmarkTree], k: int, mu, sigma, count=1, which=No
         New trees; the input trees are unchanged. ``mu`` and ``sigma`` are
         validated and copied once, and the leaves hold read-only rows of the copy.
     """
-    K, depth = _check_trees(trees, "set_each")
+    N, depth = _check_trees(trees, "set_each")
     bits = _path_bits(trees[0]._check_key(k), depth)
     mu, sigma, count = _leaf_arrays(mu, sigma, count, batch=True, caller="set_each")
     M = len(trees)
@@ -501,18 +501,18 @@ def set_each(trees: Sequence[LandmarkTree], k: int, mu, sigma, count=1, which=No
 
 
 def trees_to_arrays(trees: Sequence[LandmarkTree]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Dense ``mu (M, K, 2)``, ``sigma (M, K, 2, 2)``, ``seen (M, K)``, ``count (M, K)`` of M trees: :math:`O(MK)`.
+    """Dense ``mu (M, N, 2)``, ``sigma (M, N, 2, 2)``, ``seen (M, N)``, ``count (M, N)`` of M trees: :math:`O(MN)`.
 
     Unstored landmarks get ``mu = 0``, ``sigma = I``, ``count = 0`` (the array
     engine's initial values), so the result is a valid
     :class:`fastslam_edu.landmark.fastslam.ParticleSet` map.
     """
-    K, _ = _check_trees(trees, "trees_to_arrays")
+    N, _ = _check_trees(trees, "trees_to_arrays")
     M = len(trees)
-    mu = np.zeros((M, K, 2))
-    sigma = np.tile(np.eye(2), (M, K, 1, 1))
-    seen = np.zeros((M, K), dtype=bool)
-    count = np.zeros((M, K), dtype=np.int64)
+    mu = np.zeros((M, N, 2))
+    sigma = np.tile(np.eye(2), (M, N, 1, 1))
+    seen = np.zeros((M, N), dtype=bool)
+    count = np.zeros((M, N), dtype=np.int64)
     for m, t in enumerate(trees):
         for k, leaf in t.items():
             mu[m, k], sigma[m, k], count[m, k] = leaf
