@@ -45,6 +45,10 @@ class RobotLog:
         ``{"robot_sightings": 212, "unknown_barcodes": {43: 3}}``.
     source : str
         Where the log came from (a folder, or ``"simulation"``): used in messages.
+    robot_sightings : pandas.DataFrame or None
+        Columns ``time, subject, range, bearing``: this robot's sightings of the other robots
+        (subjects 1–5), the rows ``measurements`` leaves out
+        (:func:`fastslam_edu.datasets.mrclam.robot_sightings`); None when not read.
     """
 
     robot: int
@@ -53,6 +57,7 @@ class RobotLog:
     groundtruth: pd.DataFrame | None
     dropped: dict = field(default_factory=dict)
     source: str = ""
+    robot_sightings: pd.DataFrame | None = None
 
 
 @dataclass(frozen=True)

@@ -401,6 +401,64 @@ def landmark_sightings(raw: pd.DataFrame, barcodes: dict[int, int],
     return out, dropped
 
 
+def robot_sightings(raw: pd.DataFrame, barcodes: dict[int, int], robot: int | None = None,
+                    robots: Iterable[int] = ROBOT_SUBJECTS) -> pd.DataFrame:
+    """Keep the sightings of the robots (the rows :func:`landmark_sightings` drops), barcodes mapped to subjects.
+
+    A robot's camera reads the barcode on another robot as it reads a landmark's: ``(r, φ)`` of that robot's
+    centre in the observer's frame. These tie two robots' poses at one instant (the multi-robot smoother,
+    :mod:`fastslam_edu.landmark.multi_robot`).
+
+    Parameters
+    ----------
+    raw : DataFrame
+        Columns ``time, barcode, range, bearing`` (:func:`read_measurements`).
+    barcodes : dict[int, int]
+        Barcode -> subject (:func:`read_barcodes`).
+    robot : int, optional
+        The observer's subject number: a sighting of itself is an error.
+    robots : iterable of int
+        The robots' subject numbers (MR.CLAM: 1–5).
+
+    Returns
+    -------
+    DataFrame
+        Columns ``time`` [s], ``subject`` (int, the robot seen), ``range`` [m], ``bearing`` [rad], in the
+        order of ``raw``; empty if none.
+
+    Raises
+    ------
+    ValueError
+        If ``raw`` lacks a column, holds a NaN/inf, a negative range or time going backwards, if a robot has
+        no barcode in ``barcodes``, or if ``robot`` sees itself (one line naming the row and value).
+    """
+    missing = [c for c in RAW_MEASUREMENT_COLUMNS if c not in raw.columns]
+    if missing:
+        raise ValueError(f"robot_sightings: the measurements lack the column(s) {missing}")
+    robots = sorted(int(r) for r in robots)
+    subject_of = {int(b): int(s) for b, s in barcodes.items()}
+    without = [r for r in robots if r not in subject_of.values()]
+    if without:
+        raise ValueError(f"robot_sightings: robot(s) {without} have no barcode in the barcode table")
+    code = raw["barcode"].to_numpy(dtype=np.int64)
+    subject = np.array([subject_of.get(int(b), -1) for b in code], dtype=np.int64)
+    keep = np.flatnonzero(np.isin(subject, robots))
+    values = raw[["time", "range", "bearing"]].to_numpy(dtype=float)[keep]
+    bad = np.flatnonzero(~np.isfinite(values).all(axis=1) | (values[:, 1] < 0))
+    if bad.size:
+        row = int(keep[bad[0]])
+        raise ValueError(f"robot_sightings: row {row} (barcode {int(code[row])}) has time, range, bearing "
+                         f"{values[bad[0]].tolist()}: not finite, or a negative range")
+    back = np.flatnonzero(np.diff(values[:, 0]) < 0)
+    if back.size:
+        raise ValueError(f"robot_sightings: row {int(keep[back[0] + 1])}: time goes backwards")
+    if robot is not None and np.any(subject[keep] == int(robot)):
+        row = int(keep[np.flatnonzero(subject[keep] == int(robot))[0]])
+        raise ValueError(f"robot_sightings: row {row}: robot {int(robot)} sees its own barcode {int(code[row])}")
+    return pd.DataFrame({"time": values[:, 0], "subject": subject[keep], "range": values[:, 1],
+                         "bearing": values[:, 2]})
+
+
 # --------------------------------------------------------------------------
 # whole robots and datasets
 # --------------------------------------------------------------------------
@@ -425,15 +483,21 @@ def read_robot(path: str | Path, robot: int, barcodes: dict[int, int],
     -------
     RobotLog
         ``source`` is the folder; ``groundtruth.attrs["rate"]`` says whether
-        the groundtruth is full rate or the 1 Hz fallback (None if absent).
+        the groundtruth is full rate or the 1 Hz fallback (None if absent);
+        ``robot_sightings`` its sightings of the other robots (:func:`robot_sightings`).
     """
     folder = Path(path)
     odometry = read_odometry(folder / f"Robot{robot}_Odometry.dat")
     raw = read_measurements(folder / f"Robot{robot}_Measurement.dat")
     measurements, dropped = landmark_sightings(raw, barcodes, landmark_subjects)
+    robots = [r for r in ROBOT_SUBJECTS if r in barcodes.values()]
+    try:
+        seen = robot_sightings(raw, barcodes, robot, robots)
+    except ValueError as exc:
+        raise ValueError(f"{folder / f'Robot{robot}_Measurement.dat'}: {exc}") from None
     groundtruth = read_groundtruth(folder, robot)
     return RobotLog(robot=int(robot), odometry=odometry, measurements=measurements,
-                    groundtruth=groundtruth, dropped=dropped, source=str(folder))
+                    groundtruth=groundtruth, dropped=dropped, source=str(folder), robot_sightings=seen)
 
 
 def robots_in(folder: str | Path) -> list[int]:
@@ -524,7 +588,8 @@ def write_dataset(dataset: Dataset, folder: str | Path) -> Path:
     ``groundtruth_1hz/RobotN_Groundtruth_1hz.csv``). Floats are written in
     the shortest form that reads back to the same float, so
     :func:`read_dataset` returns the same numbers. The dropped sightings
-    (``RobotLog.dropped``) are not written.
+    (``RobotLog.dropped``) are not written; the sightings of other robots
+    (``RobotLog.robot_sightings``) are, with the landmark sightings, in time order.
 
     Parameters
     ----------
@@ -562,6 +627,9 @@ def write_dataset(dataset: Dataset, folder: str | Path) -> Path:
                    [log.odometry[c].to_numpy() for c in ODOMETRY_COLUMNS], [False] * 3)
         m = log.measurements
         _check_finite_sorted(m, MEASUREMENT_COLUMNS, f"robot {n} measurements", time=True)
+        if log.robot_sightings is not None and len(log.robot_sightings):  # merged back, in time order
+            m = pd.concat([m, log.robot_sightings[list(MEASUREMENT_COLUMNS)]], ignore_index=True)
+            m = m.sort_values("time", kind="stable")
         subjects = m["subject"].to_numpy(dtype=np.int64)
         missing = sorted(set(subjects.tolist()) - set(barcode_of))
         if missing:
@@ -601,6 +669,7 @@ __all__ = [
     "read_numeric_table",
     "read_odometry",
     "read_robot",
+    "robot_sightings",
     "robots_in",
     "write_dataset",
 ]
