@@ -2,11 +2,11 @@
 
 The baseline FastSLAM was designed to beat (*Probabilistic Robotics*, table 10.1; with
 unknown correspondences, table 10.2: see "Unknown correspondences" below).
-The state is the pose and all :math:`K` landmarks stacked,
+The state is the pose and all :math:`N` landmarks stacked,
 
 .. math::
 
-    \\mathbf y = (x, y, \\theta, m_{1,x}, m_{1,y}, \\dots, m_{K,x}, m_{K,y})^\\top, \\qquad
+    \\mathbf y = (x, y, \\theta, l_{1,x}, l_{1,y}, \\dots, l_{N,x}, l_{N,y})^\\top, \\qquad
     \\mathbf y \\sim \\mathcal N(\\mu, \\Sigma),
 
 with :math:`\\mu` of shape (3 + 2K,) [m, m, rad, m, ...] and :math:`\\Sigma` (3 + 2K, 3 + 2K).
@@ -28,7 +28,7 @@ The filter, for each step of an event stream
        \\Sigma_{xx} \\leftarrow G_t \\Sigma_{xx} G_t^\\top + V_t M_t V_t^\\top, \\qquad
        \\Sigma_{xm} \\leftarrow G_t \\Sigma_{xm} .
 
-   Only the pose's rows and columns change: :math:`O(K)`. Between two sightings the
+   Only the pose's rows and columns change: :math:`O(N)`. Between two sightings the
    steps are composed in one (:func:`predict_segment`, equal to the step-by-step
    prediction to rounding).
 2. **A landmark seen for the first time** is initialised from the inverse model
@@ -41,16 +41,16 @@ The filter, for each step of an event stream
    Jacobian :math:`H_t = \\partial h/\\partial \\mathbf y`, non-zero only in the pose's columns
    (:math:`G_x = \\partial h/\\partial x`) and landmark :math:`k`'s (:math:`H = \\partial h/\\partial m`),
    the innovation :math:`\\nu = z \\ominus \\hat z` (bearing wrapped), its covariance
-   :math:`Q = H_t \\Sigma H_t^\\top + R`, the gain :math:`K_t = \\Sigma H_t^\\top Q^{-1}`, and
+   :math:`Q = H_t \\Sigma H_t^\\top + R`, the gain :math:`K = \\Sigma H_t^\\top Q^{-1}`, and
 
    .. math::
 
-       \\mu \\leftarrow \\mu + K_t \\nu, \\qquad
-       \\Sigma \\leftarrow (I - K_t H_t) \\Sigma (I - K_t H_t)^\\top + K_t R K_t^\\top
+       \\mu \\leftarrow \\mu + K \\nu, \\qquad
+       \\Sigma \\leftarrow (I - K H_t) \\Sigma (I - K H_t)^\\top + K R K^\\top
 
    (Joseph form: symmetric and positive semi-definite for any gain, and first-order
-   insensitive to errors in :math:`K_t`). Every entry of :math:`\\Sigma` changes:
-   :math:`O(K^2)` per sighting, the cost FastSLAM avoids (:func:`joseph_update`).
+   insensitive to errors in :math:`K`). Every entry of :math:`\\Sigma` changes:
+   :math:`O(N^2)` per sighting, the cost FastSLAM avoids (:func:`joseph_update`).
 4. **The gate**: a sighting whose squared Mahalanobis distance
    :math:`d^2 = \\nu^\\top Q^{-1} \\nu` exceeds ``gate_chi2`` is set aside, with the
    escape of FastSLAM's :class:`~fastslam_edu.landmark.fastslam.Gate` (after
@@ -238,7 +238,7 @@ class EKFSLAMState:
         :math:`\\mu`: pose ``(x, y, θ)`` [m, m, rad] then ``(m_x, m_y)`` [m] per landmark.
     sigma : ndarray (3 + 2K, 3 + 2K)
         :math:`\\Sigma`; the rows and columns of landmarks not yet seen are zero.
-    seen : ndarray (K,) bool
+    seen : ndarray (N,) bool
         Landmark ``k`` has been initialised.
     """
 
@@ -280,11 +280,11 @@ class EKFSLAMState:
         return self.sigma[:3, :3].copy()
 
     def landmarks(self) -> tuple[np.ndarray, np.ndarray]:
-        """Means (K, 2) [m] and marginal covariances (K, 2, 2) [m²]; NaN for landmarks not seen."""
-        K = self.n_landmarks
-        mu = self.mu[3:].reshape(K, 2).copy()
-        idx = 3 + 2 * np.arange(K)
-        cov = np.empty((K, 2, 2))
+        """Means (N, 2) [m] and marginal covariances (N, 2, 2) [m²]; NaN for landmarks not seen."""
+        N = self.n_landmarks
+        mu = self.mu[3:].reshape(N, 2).copy()
+        idx = 3 + 2 * np.arange(N)
+        cov = np.empty((N, 2, 2))
         for a in range(2):
             for b in range(2):
                 cov[:, a, b] = self.sigma[idx + a, idx + b]
@@ -417,7 +417,7 @@ def add_landmark(state: EKFSLAMState, z, k: int, R) -> EKFSLAMState:
 
     :math:`\\mu_k = h^{-1}(\\mu_x, z)`; :math:`\\Sigma_{kk} = J_x \\Sigma_{xx} J_x^\\top + G R G^\\top`
     and :math:`\\Sigma_{k\\cdot} = J_x \\Sigma_{x\\cdot}` (the landmark inherits the pose's error).
-    Cost :math:`O(K)`.
+    Cost :math:`O(N)`.
     """
     _check_landmark(state, k, "add_landmark")
     x = state.mu[:3]
@@ -455,18 +455,18 @@ def full_measurement_jacobian(state: EKFSLAMState, k: int) -> np.ndarray:
 
 
 def joseph_update(sigma: np.ndarray, gain: np.ndarray, sigma_Ht: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """Joseph form :math:`\\Sigma \\leftarrow (I - K_tH_t)\\Sigma(I - K_tH_t)^\\top + K_tRK_t^\\top` in place, in O(n²).
+    """Joseph form :math:`\\Sigma \\leftarrow (I - KH_t)\\Sigma(I - KH_t)^\\top + KRK^\\top` in place, in O(n²).
 
     With :math:`C = \\Sigma H_t^\\top` (n, 2) and :math:`Q = H_t\\Sigma H_t^\\top + R` (2, 2) the Joseph
-    form expands to :math:`\\Sigma - K_t C^\\top - C K_t^\\top + K_t Q K_t^\\top
-    = \\Sigma - (A B^\\top + B A^\\top)` with :math:`A = K_t`, :math:`B = C - \\tfrac12 K_t Q`: a symmetric
+    form expands to :math:`\\Sigma - K C^\\top - C K^\\top + K Q K^\\top
+    = \\Sigma - (A B^\\top + B A^\\top)` with :math:`A = K`, :math:`B = C - \\tfrac12 K Q`: a symmetric
     rank-4 change, applied entry by entry in one pass (:func:`subtract_symmetric_product`).
     :math:`H_t` (2, n) is never formed; every entry of :math:`\\Sigma` is read and written once —
-    the :math:`O(K^2)` memory traffic of an EKF-SLAM update.
+    the :math:`O(N^2)` memory traffic of an EKF-SLAM update.
 
     Parameters
     ----------
-    sigma : (n, n) symmetric, updated in place; gain : (n, 2) :math:`K_t`; sigma_Ht : (n, 2) :math:`C`; Q : (2, 2).
+    sigma : (n, n) symmetric, updated in place; gain : (n, 2) :math:`K`; sigma_Ht : (n, 2) :math:`C`; Q : (2, 2).
     """
     B = sigma_Ht - 0.5 * gain @ Q
     subtract_symmetric_product(sigma, np.ascontiguousarray(gain), np.ascontiguousarray(B))
@@ -496,7 +496,7 @@ def update(state: EKFSLAMState, z, k: int, R, *, gate_chi2: float | None = None,
 
     A landmark not seen yet is initialised (:func:`add_landmark`). Otherwise
     :math:`\\nu = z \\ominus h(\\mu_x, \\mu_k)`, :math:`Q = H_t\\Sigma H_t^\\top + R`,
-    :math:`K_t = \\Sigma H_t^\\top Q^{-1}`, :math:`\\mu \\leftarrow \\mu + K_t\\nu` (heading wrapped),
+    :math:`K = \\Sigma H_t^\\top Q^{-1}`, :math:`\\mu \\leftarrow \\mu + K\\nu` (heading wrapped),
     and :func:`joseph_update`; unless :math:`d^2 = \\nu^\\top Q^{-1}\\nu >` ``gate_chi2`` and not
     ``escape``: then nothing changes.
 
@@ -554,18 +554,18 @@ def association_distances(state: EKFSLAMState, z, R) -> np.ndarray:
 
     :math:`\\nu_k = z \\ominus h(\\mu_x, \\mu_k)` and :math:`Q_k = H_t^k \\Sigma H_t^{k\\top} + R` as in
     :func:`update`, for all seen landmarks at once (only the pose's and landmark :math:`k`'s blocks of
-    :math:`\\Sigma` enter: :math:`O(K)`). Returns (K,); ``inf`` for landmarks not seen (and for one the
+    :math:`\\Sigma` enter: :math:`O(N)`). Returns (N,); ``inf`` for landmarks not seen (and for one the
     robot stands on).
     """
     z = finite_array("z", z, "association_distances", (2,)).reshape(2)
     R = finite_array("R", R, "association_distances", (2, 2)).reshape(2, 2)
-    K = state.n_landmarks
-    d2 = np.full(K, np.inf)
+    N = state.n_landmarks
+    d2 = np.full(N, np.inf)
     idx = np.flatnonzero(state.seen)
     if idx.size == 0:
         return d2
     x = state.mu[:3]
-    m = state.mu[3:].reshape(K, 2)[idx]
+    m = state.mu[3:].reshape(N, 2)[idx]
     dx, dy = m[:, 0] - x[0], m[:, 1] - x[1]
     q = dx * dx + dy * dy
     ok = q > 0
@@ -586,7 +586,7 @@ def association_distances(state: EKFSLAMState, z, R) -> np.ndarray:
 
 def associate(d2: np.ndarray, new_landmark_chi2: float, gate_chi2: float | None = None,
               mutual_exclusion: bool = True) -> np.ndarray:
-    """Table 10.2's choice for each sighting of one instant, from their distances ``d2`` (n, K).
+    """Table 10.2's choice for each sighting of one instant, from their distances ``d2`` (n, N).
 
     For each sighting: the map landmark ``k`` it updates (>= 0), :data:`NEW` (-1: its :math:`d^2` to
     every map landmark exceeds ``new_landmark_chi2``) or :data:`SET_ASIDE` (-2: no landmark within
@@ -596,22 +596,22 @@ def associate(d2: np.ndarray, new_landmark_chi2: float, gate_chi2: float | None 
     costing ``new_landmark_chi2`` (:func:`scipy.optimize.linear_sum_assignment`). Returns (n,) int.
     """
     d2 = np.atleast_2d(np.asarray(d2, dtype=float))
-    n, K = d2.shape
+    n, N = d2.shape
     limit = new_landmark_chi2 if gate_chi2 is None else min(gate_chi2, new_landmark_chi2)
-    nearest = d2.min(axis=1) if K else np.full(n, np.inf)
+    nearest = d2.min(axis=1) if N else np.full(n, np.inf)
     out = np.where(nearest > new_landmark_chi2, NEW, SET_ASIDE)
     if not mutual_exclusion or n == 1:
-        k = d2.argmin(axis=1) if K else np.zeros(n, dtype=int)
+        k = d2.argmin(axis=1) if N else np.zeros(n, dtype=int)
         return np.where(nearest <= limit, k, out)
     from scipy.optimize import linear_sum_assignment
 
     big = 1e6 * (new_landmark_chi2 + 1.0)
-    cost = np.full((n, K + n), big)
-    cost[:, :K] = np.where(d2 <= limit, d2, big)
-    cost[np.arange(n), K + np.arange(n)] = new_landmark_chi2  # sighting i's own "new landmark" slot
+    cost = np.full((n, N + n), big)
+    cost[:, :N] = np.where(d2 <= limit, d2, big)
+    cost[np.arange(n), N + np.arange(n)] = new_landmark_chi2  # sighting i's own "new landmark" slot
     rows, cols = linear_sum_assignment(cost)
     for i, c in zip(rows, cols):
-        if c < K and cost[i, c] < big:
+        if c < N and cost[i, c] < big:
             out[i] = c
     return out
 
@@ -619,15 +619,15 @@ def associate(d2: np.ndarray, new_landmark_chi2: float, gate_chi2: float | None 
 def add_new_landmark(state: EKFSLAMState, z, R) -> int:
     """Grow the state by one landmark (two rows and columns) and initialise it from ``z`` (:func:`add_landmark`).
 
-    Returns its index. The copy costs :math:`O(K^2)`, paid once per landmark.
+    Returns its index. The copy costs :math:`O(N^2)`, paid once per landmark.
     """
-    K = state.n_landmarks
+    N = state.n_landmarks
     n = len(state.mu)
     mu, sigma = np.zeros(n + 2), np.zeros((n + 2, n + 2))
     mu[:n], sigma[:n, :n] = state.mu, state.sigma
     state.mu, state.sigma, state.seen = mu, sigma, np.append(state.seen, False)
-    add_landmark(state, z, K, R)
-    return K
+    add_landmark(state, z, N, R)
+    return N
 
 
 # ---------------------------------------------------------------- the run
@@ -639,9 +639,9 @@ class EKFSLAMResult:
 
     Attributes
     ----------
-    t : (N,) step times [s]
-    pose_mean : (N, 3) :math:`\\mu_x` after each step (after the update at a measurement step)
-    landmarks_mean, landmarks_cov, observed : (K, 2), (K, 2, 2), (K,) the map at the end (NaN where not seen)
+    t : (T,) step times [s]
+    pose_mean : (T, 3) :math:`\\mu_x` after each step (after the update at a measurement step)
+    landmarks_mean, landmarks_cov, observed : (N, 2), (N, 2, 2), (N,) the map at the end (NaN where not seen)
     mean, cov : (3 + 2K,), (3 + 2K, 3 + 2K) the final joint :math:`\\mu`, :math:`\\Sigma`
     update_t, pose_cov : (n,), (n, 3, 3) time and :math:`\\Sigma_{xx}` after each measurement step
     measurements_used, measurements_rejected : counts (initialisations count as used)
@@ -649,7 +649,7 @@ class EKFSLAMResult:
     params, landmark_subjects : the settings; the subject of each landmark index
     correspondences : "known" or "unknown"
     sighting_map : (n,) int, the map landmark each sighting of the stream updated or started (< 0: set aside)
-    map_mean, map_cov : (N, 2), (N, 2, 2) the filter's own map, in the order its landmarks were made
+    map_mean, map_cov : (n, 2), (n, 2, 2) the filter's own map, in the order its landmarks were made
 
     With unknown correspondences ``landmarks_mean``, ``landmarks_cov`` are the filter's own map
     (``map_mean``, ``map_cov``, all ``observed``): which surveyed landmark each one is, is for a
@@ -684,7 +684,7 @@ class EKFSLAMResult:
 
     @property
     def landmarks(self) -> np.ndarray:
-        """The filter's map (N, 2), in the order its landmarks were made: ``map_mean``."""
+        """The filter's map (n, 2), in the order its landmarks were made: ``map_mean``."""
         return self.map_mean
 
     @property
@@ -756,8 +756,8 @@ def run_ekf_slam(stream: EventStream, params: EKFSLAMParams | FastSLAMParams = E
     z_all = np.asarray(stream.z, dtype=float)
     R_all = params.measurement_covariance(z_all)
     gate = Gate(params.gate_chi2, params.gate_escape_s, stream.n_landmarks)
-    N = len(stream)
-    pose_mean = np.empty((N, 3))
+    T = len(stream)
+    pose_mean = np.empty((T, 3))
     sighting_map = np.full(len(z_all), SET_ASIDE)
     update_t, pose_cov, counts = [], [], {INITIALISED: 0, UPDATED: 0, REJECTED: 0}
     t_start = time.perf_counter()
