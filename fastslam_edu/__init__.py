@@ -23,7 +23,7 @@ landmark        landmark SLAM
     fastslam        the particle set, resampling, combining, and the run over a log (hooks, gate, proposals)
     proposal        FastSLAM 2.0's proposal: the pose sampled given the sighting
     tree            Montemerlo's persistent balanced tree of landmark filters
-    fastslam_tree   the filter with tree-backed maps (O(M log K) resampling)
+    fastslam_tree   the filter with tree-backed maps (O(M log N) resampling)
     ekf_slam        EKF-SLAM: the joint Gaussian over pose and map (the baseline); barcodes known or not
     association     FastSLAM with unknown correspondences: per-particle maximum likelihood, new landmarks, negative evidence
     smoother        least squares over the whole log: the most probable path and map under the same model

@@ -120,11 +120,11 @@ def draw_particle_anatomy(paths=None, mu=None, sigma=None, weights=None, seen=No
     ----------
     paths : (n, T, 3), optional
         The particles' paths (x, y, θ). Without it, a small made-up set drawn with ``seed`` is shown.
-    mu, sigma : (n, K, 2), (n, K, 2, 2), optional
+    mu, sigma : (n, N, 2), (n, N, 2, 2), optional
         Their landmark means and covariances (with ``paths``).
     weights : (n,), optional
         Their weights (default: equal).
-    seen : (n, K) bool, optional
+    seen : (n, N) bool, optional
         Which landmarks each particle has seen (default: all).
     n_particles, seed : int
         Size and seed of the made-up set.

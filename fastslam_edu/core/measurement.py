@@ -21,7 +21,7 @@ landmark update) and the Jacobian of ``h⁻¹`` with respect to the *measurement
 
 Every function is vectorised: ``x`` has shape ``(..., 3)``, ``m`` and ``z`` have
 shape ``(..., 2)`` and the leading dimensions broadcast against each other
-(e.g. poses ``(M, 1, 3)`` of ``M`` particles against landmarks ``(M, K, 2)``).
+(e.g. poses ``(M, 1, 3)`` of ``M`` particles against landmarks ``(M, N, 2)``).
 """
 
 from __future__ import annotations

@@ -319,7 +319,7 @@ def event_stream(log: RobotLog, landmark_subjects, rate: str = "full", x0=None,
     Parameters
     ----------
     log : RobotLog
-    landmark_subjects : array_like of int, shape (K,)
+    landmark_subjects : array_like of int, shape (N,)
         Subject of each filter index; measurements of other subjects raise.
     rate : {"full", "1hz"}
     x0 : array_like, shape (3,), optional

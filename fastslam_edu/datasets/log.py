@@ -10,7 +10,7 @@ Conventions used throughout the package
 * Times are seconds (float, as in the ``.dat`` files).
 * A pose is ``(x, y, θ)`` in metres and radians, world frame.
 * A measurement is ``z = (r, φ)``: range [m] and bearing [rad] in the robot frame.
-* Landmarks are indexed ``0 … K-1`` inside the filter; ``landmark_subjects[k]``
+* Landmarks are indexed ``0 … N-1`` inside the filter; ``landmark_subjects[k]``
   gives the MR.CLAM subject number (6–20) of index ``k``.
 """
 
@@ -84,12 +84,12 @@ class Dataset:
 
     @property
     def landmark_subjects(self) -> np.ndarray:
-        """Subject numbers of the landmarks, in filter index order, shape (K,)."""
+        """Subject numbers of the landmarks, in filter index order, shape (N,)."""
         return self.landmarks.index.to_numpy(dtype=int)
 
     @property
     def landmark_positions(self) -> np.ndarray:
-        """Groundtruth landmark positions in filter index order, shape (K, 2) [m]."""
+        """Groundtruth landmark positions in filter index order, shape (N, 2) [m]."""
         return self.landmarks[["x", "y"]].to_numpy(dtype=float)
 
 
@@ -115,8 +115,8 @@ class EventStream:
     z : ndarray, shape (n, 2)
         Measurements ``(r [m], φ [rad])``.
     landmark : ndarray of int, shape (n,)
-        Filter index (0 … K-1) of the landmark each measurement sees.
-    landmark_subjects : ndarray of int, shape (K,)
+        Filter index (0 … N-1) of the landmark each measurement sees.
+    landmark_subjects : ndarray of int, shape (N,)
         Subject number of each filter index.
     x0 : ndarray, shape (3,) or None
         Initial pose (from groundtruth at ``t[0]``) if known.
