@@ -22,9 +22,9 @@ from scipy.stats import norm
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.events import clean_1hz_table
 from fastslam_edu.datasets.log import Dataset, RobotLog
-from fastslam_edu.core.motion import MotionNoise, propagate
+from fastslam_edu.core.motion import MotionNoise, dead_reckon_at, propagate
+from fastslam_edu.evaluation import noise_estimation as ne
 from fastslam_edu.evaluation.noise_estimation import (
-    dead_reckoning,
     estimate_noise,
     fit_random_walk,
     fit_range_noise,
@@ -222,7 +222,7 @@ def test_dead_reckoning_matches_a_loop_of_propagate(clean):
     odo = clean.robots[1].odometry.iloc[:700]
     times = np.array([odo["time"].iloc[0] - 0.3, odo["time"].iloc[100] + 0.004, odo["time"].iloc[650]])
     x0 = np.array([1.0, -2.0, 3.0])
-    got = dead_reckoning(odo, times, x0)
+    got = dead_reckon_at(odo, times, x0)
     # reference: a plain loop, command held until the next row, zero before the first
     t, u = odo["time"].to_numpy(), odo[["v", "omega"]].to_numpy()
     x, now, out, theta = x0.copy(), times[0], [], x0[2]
@@ -467,3 +467,17 @@ def test_residual_correlation_of_an_ar1_error():
         residual_correlation(frame.drop(columns="subject"), 1.0, "bearing_residual")
     with pytest.raises(ValueError, match="fewer than 3 pairs"):
         residual_correlation(frame, 1e6, "bearing_residual")
+
+
+#: What the chapters call as ``ne.<name>`` (notebooks 01–04, 09, 12, 20): the package keeps every one of them.
+CHAPTER_NAMES = ("dead_reckoning", "estimate_noise", "fit_random_walk", "fit_range_noise", "heading_glitches",
+                 "increment_variances", "landmark_check", "measurement_noise", "measurement_residuals", "motion_noise",
+                 "odometry_increment_errors", "range_noise_profile", "relative_motion", "residual_correlation",
+                 "robust_std", "usable_groundtruth")
+
+
+def test_the_package_keeps_every_name_the_chapters_use():
+    missing = [n for n in CHAPTER_NAMES if not callable(getattr(ne, n, None))]
+    assert not missing, missing
+    assert set(ne.__all__) >= set(CHAPTER_NAMES)
+    assert ne.dead_reckoning is dead_reckon_at  # one function, the chapters' name for it

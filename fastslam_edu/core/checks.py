@@ -30,3 +30,25 @@ def finite_array(name: str, a, caller: str, trailing: tuple[int, ...] = (), dtyp
         bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
         raise ValueError(f"{caller}: {name} contains a non-finite value ({a[bad]}) at index {bad}")
     return a
+
+
+def float_array(a, name: str) -> np.ndarray:
+    """``a`` as a float array; a ValueError naming ``name`` if it is not numeric."""
+    try:
+        return np.asarray(a, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be an array of real numbers, got {a!r}") from exc
+
+
+def point_rows(a, name: str, *, allow_nan: bool = False) -> np.ndarray:
+    """An (n, 2) array of finite points (NaN rows allowed on request)."""
+    p = float_array(a, name)
+    if p.ndim != 2 or p.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (n, 2) (x, y in metres), got shape {p.shape}")
+    bad = ~np.isfinite(p).all(axis=1)
+    if allow_nan:
+        bad &= ~np.isnan(p).any(axis=1)
+    if np.any(bad):
+        rows = np.flatnonzero(bad)
+        raise ValueError(f"{name} has {rows.size} row(s) with NaN or inf values, e.g. row(s) {rows[:5].tolist()}")
+    return p

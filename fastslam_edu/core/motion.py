@@ -470,6 +470,48 @@ def dead_reckon(x0, u, dt) -> np.ndarray:
     return path_from_increments(x0, dx, dy, theta, wrap=False)[0]
 
 
+def dead_reckon_at(odometry, times, x0=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Integrate the odometry with the filter's motion model, without noise.
+
+    The command ``(v_i, ω_i)`` of row ``i`` is held from ``t_i`` until the
+    next row (zero before the first row); the path is a chain of Euler steps
+    (:func:`dead_reckon`) between the
+    sorted union of the odometry times and ``times``, starting at ``x0`` at
+    ``min(times[0], t_0)``.
+
+    Parameters
+    ----------
+    odometry : DataFrame
+        Columns ``time, v, omega`` (a log's odometry table,
+        :attr:`fastslam_edu.datasets.log.RobotLog.odometry`), time non-decreasing.
+    times : array_like, shape (n,)
+        Non-decreasing times [s] at which the pose is wanted.
+    x0 : array_like, shape (3,)
+        Pose at the start.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Poses ``(x, y, θ)`` at ``times``; θ is **not** wrapped (a continuous
+        heading, so that differences count whole turns).
+    """
+    odo = odometry[["time", "v", "omega"]].to_numpy(dtype=float)
+    q = np.asarray(times, dtype=float)
+    if odo.shape[0] == 0 or not np.isfinite(odo).all():
+        raise ValueError("dead_reckon_at: odometry must be non-empty and finite")
+    if q.ndim != 1 or q.size == 0 or not np.isfinite(q).all() or np.any(np.diff(q) < 0):
+        raise ValueError("dead_reckon_at: times must be a non-empty, finite, non-decreasing 1-D array")
+    if np.any(np.diff(odo[:, 0]) < 0):
+        raise ValueError("dead_reckon_at: odometry time goes backwards")
+    knots = np.unique(np.concatenate([odo[:, 0], q]))
+    knots = knots[knots <= q[-1]]
+    row = np.searchsorted(odo[:, 0], knots[:-1], side="right") - 1
+    u = np.where(row[:, None] >= 0, odo[np.maximum(row, 0), 1:3], 0.0)
+    x0 = np.asarray(x0, dtype=float)
+    path = np.vstack([x0, dead_reckon(x0, u, np.diff(knots))])
+    return path[np.searchsorted(knots, q)]
+
+
 def sample_motion(x, u, dt: float, noise: MotionNoise, rng: np.random.Generator) -> np.ndarray:
     """Draw new poses from ``p(x_t | x_{t-1}, u_t)``: :func:`move` with fresh normals.
 
@@ -499,5 +541,5 @@ def sample_motion(x, u, dt: float, noise: MotionNoise, rng: np.random.Generator)
 
 
 __all__ = ["MotionNoise", "advance", "propagate", "propagate_arc", "move", "move_segment", "segment_increments",
-           "path_from_increments",
+           "path_from_increments", "dead_reckon", "dead_reckon_at",
            "sample_motion"]

@@ -14,6 +14,11 @@ operations of this module are matrix algebra written out:
   increment ``u_k = x_{k−1}⁻¹ ⊕ x_k`` is a relative pose in the robot frame, and
   ``x_k = x_{k−1} ⊕ u_k`` rebuilds the path (:func:`compose_increments`).
 
+The rigid motion that best fits one point set onto another (least squares,
+:func:`align_se2`, applied by :func:`apply_se2`) is how an estimate is compared
+with the truth up to the gauge freedom, and how a start pose is placed on a
+surveyed map.
+
 Angles of results are wrapped to (−π, π] with
 :func:`fastslam_edu.core.angles.wrap_angle`. Every function is vectorised: poses are
 ``(..., 3)``, points ``(..., 2)``, and leading dimensions broadcast (e.g. ``M``
@@ -25,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.core.checks import finite_array
+from fastslam_edu.core.checks import finite_array, float_array, point_rows
 
 __all__ = [
     "interpolate_poses",
@@ -35,6 +40,8 @@ __all__ = [
     "transform_points",
     "path_increments",
     "compose_increments",
+    "align_se2",
+    "apply_se2",
 ]
 
 
@@ -262,3 +269,98 @@ def interpolate_poses(t_query, t_gt, poses_gt, *, tolerance: float = DEFAULT_TIM
             wrap_angle(np.interp(tq, tg, theta)),
         ]
     )
+
+
+# --------------------------------------------------------------------------- alignment
+
+
+def align_se2(source, target, weights=None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Rigid motion that best maps ``source`` onto ``target`` (least squares, no scale).
+
+    Solves
+
+    .. math::
+
+        \\min_{R \\in SO(2),\\, t} \\sum_j w_j \\, \\| R s_j + t - y_j \\|^2
+
+    in closed form (Kabsch / Umeyama without scale): with weighted centroids
+    ``s̄, ȳ`` and the 2×2 cross-covariance ``H = Σ_j w_j (s_j − s̄)(y_j − ȳ)ᵀ
+    = U Σ Vᵀ`` (SVD),
+
+    .. math::
+
+        R = V \\operatorname{diag}(1, \\det(V U^T))\\, U^T, \\qquad t = ȳ - R s̄.
+
+    The ``diag(1, ±1)`` factor enforces ``det R = +1``: without it a mirrored
+    point set would be "aligned" by a reflection, which no robot can undergo.
+
+    Parameters
+    ----------
+    source : array_like, shape (n, 2)
+        Points to move (e.g. estimated landmarks or path) [m].
+    target : array_like, shape (n, 2)
+        Corresponding points to fit (groundtruth) [m].
+    weights : array_like, shape (n,), optional
+        Non-negative weights ``w_j`` (default all 1), not all zero.
+
+    Returns
+    -------
+    R : ndarray, shape (2, 2)
+        Rotation matrix, ``det R = +1``.
+    t : ndarray, shape (2,)
+        Translation [m].
+    angle : float
+        Rotation angle [rad] in (-π, π]: ``R = [[cos, -sin], [sin, cos]]``.
+
+    Notes
+    -----
+    With one point (or all source points identical) the rotation is not
+    determined; ``R = I`` is returned and ``t`` matches the centroids.
+    """
+    s = point_rows(source, "source")
+    y = point_rows(target, "target")
+    if s.shape != y.shape or s.shape[0] == 0:
+        raise ValueError(f"source and target must be non-empty with the same shape (n, 2), got {s.shape} and {y.shape}")
+    if weights is None:
+        w = np.ones(s.shape[0])
+    else:
+        w = float_array(weights, "weights")
+        if w.shape != (s.shape[0],):
+            raise ValueError(f"weights must have shape ({s.shape[0]},), got {w.shape}")
+        if not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+            raise ValueError(f"weights must be finite, non-negative and not all zero, got {w}")
+    w = w / w.sum()
+    s_bar = w @ s
+    y_bar = w @ y
+    H = (s - s_bar).T @ (w[:, None] * (y - y_bar))
+    scale = (1.0 + np.abs(s).max()) * (1.0 + np.abs(y).max())
+    if np.abs(H).max() <= 64 * np.finfo(float).eps * scale:
+        R = np.eye(2)  # H = 0 up to round-off: every rotation fits equally well
+    else:
+        U, _, Vt = np.linalg.svd(H)
+        d = 1.0 if np.linalg.det(Vt.T @ U.T) >= 0 else -1.0
+        R = Vt.T @ np.diag([1.0, d]) @ U.T
+    t = y_bar - R @ s_bar
+    angle = float(np.arctan2(R[1, 0], R[0, 0]))
+    return R, t, float(wrap_angle(angle))
+
+
+def apply_se2(points, R, t) -> np.ndarray:
+    """Apply the rigid motion ``p ↦ R p + t`` to points.
+
+    Parameters
+    ----------
+    points : array_like, shape (..., 2)
+    R : array_like, shape (2, 2)
+    t : array_like, shape (2,)
+
+    Returns
+    -------
+    ndarray, shape (..., 2)
+    """
+    p = float_array(points, "points")
+    R = float_array(R, "R")
+    t = float_array(t, "t")
+    if p.shape[-1:] != (2,) or R.shape != (2, 2) or t.shape != (2,):
+        raise ValueError(f"expected points (..., 2), R (2, 2), t (2,); got {p.shape}, {R.shape}, {t.shape}")
+    return p @ R.T + t

@@ -33,7 +33,7 @@ from scipy.optimize import linear_sum_assignment
 
 from fastslam_edu.core.measurement import innovation, range_bearing
 from fastslam_edu.evaluation import registration
-from fastslam_edu.evaluation.metrics import align_se2, apply_se2
+from fastslam_edu.core.se2 import align_se2, apply_se2
 from fastslam_edu.landmark.association import AssociationParams, choose_landmarks, initial_particles
 from fastslam_edu.landmark.fastslam import FilterRun, Hook, ParticleSet
 from fastslam_edu.landmark.fastslam_step import pose_covariance
@@ -53,12 +53,12 @@ def _assign(estimate, truth, max_distance):
 
 def match_landmarks(estimate, truth, max_distance: float = MAX_MATCH_DISTANCE, align: bool = True,
                     iterations: int = 3, start=None, register: bool = True) -> np.ndarray:
-    """For each map landmark (L, 2), the index of the surveyed landmark (K, 2) it is matched to, or -1.
+    """For each map landmark (L, 2), the index of the surveyed landmark (N, 2) it is matched to, or -1.
 
     The one-to-one assignment that minimises the summed distance
     (``scipy.optimize.linear_sum_assignment``); pairs further apart than ``max_distance`` are unmatched.
     With ``align`` (default) the map is first moved by the SE(2) motion that fits the matched pairs
-    (:func:`fastslam_edu.evaluation.metrics.align_se2`), and matched again, ``iterations`` times: SLAM
+    (:func:`fastslam_edu.core.se2.align_se2`), and matched again, ``iterations`` times: SLAM
     recovers the map only up to such a motion, and where surveyed landmarks stand a few tenths of a
     metre apart a small offset of the whole map would otherwise match each landmark to its neighbour.
 
@@ -105,8 +105,8 @@ def _match_from(estimate, truth, start, max_distance, iterations):
 
 
 def path_alignment(path_xy, truth_xy):
-    """``(R, t)``: the SE(2) motion that best maps the filter's positions (N, 2) onto the groundtruth's (N, 2)
-    at the same times (:func:`fastslam_edu.evaluation.metrics.align_se2`); rows with NaN are left out. The
+    """``(R, t)``: the SE(2) motion that best maps the filter's positions (n, 2) onto the groundtruth's (n, 2)
+    at the same times (:func:`fastslam_edu.core.se2.align_se2`); rows with NaN are left out. The
     map of a SLAM run is placed in the frame of its path, so the same motion brings the map near the survey."""
     path_xy, truth_xy = np.asarray(path_xy, dtype=float), np.asarray(truth_xy, dtype=float)
     ok = np.isfinite(path_xy).all(axis=1) & np.isfinite(truth_xy).all(axis=1)
@@ -115,7 +115,7 @@ def path_alignment(path_xy, truth_xy):
 
 
 def in_survey_order(estimate, match, n_truth: int) -> tuple[np.ndarray, np.ndarray]:
-    """The matched map landmarks (L, 2) put in the surveyed order: ``(landmarks (K, 2), observed (K,))``, NaN and
+    """The matched map landmarks (L, 2) put in the surveyed order: ``(landmarks (N, 2), observed (N,))``, NaN and
     False where no map landmark is matched (``match`` from :func:`match_landmarks`), so that the scorers of known
     correspondences apply."""
     estimate, match = np.asarray(estimate, dtype=float).reshape(-1, 2), np.asarray(match)
@@ -147,9 +147,9 @@ def association_accuracy(history, true_index, map_ident, map_match) -> float:
 
 
 def oracle_association(poses, z, R, landmarks) -> np.ndarray:
-    """Maximum-likelihood association at known poses (n, 3) against a known map (K, 2): the index per sighting.
+    """Maximum-likelihood association at known poses (n, 3) against a known map (N, 2): the index per sighting.
 
-    :math:`\\arg\\max_j \\log\\mathcal N(z \\ominus h(x, m_j); 0, R)` with the sighting's ``R`` (n, 2, 2); rows of
+    :math:`\\arg\\max_j \\log\\mathcal N(z \\ominus h(x, \\mathbf l_j); 0, R)` with the sighting's ``R`` (n, 2, 2); rows of
     ``landmarks`` that are NaN (not in a map) are never chosen.
     """
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
@@ -159,7 +159,7 @@ def oracle_association(poses, z, R, landmarks) -> np.ndarray:
     mapped = np.flatnonzero(np.isfinite(landmarks).all(axis=1))  # a landmark at NaN (not in the map) is never chosen
     if len(mapped) == 0:
         raise ValueError("oracle_association: no landmark with a finite position")
-    nu = innovation(z[:, None, :], range_bearing(poses[:, None, :], landmarks[None, mapped, :]))  # (n, K, 2)
+    nu = innovation(z[:, None, :], range_bearing(poses[:, None, :], landmarks[None, mapped, :]))  # (n, N, 2)
     Rinv = np.linalg.inv(R)[:, None]
     d2 = np.einsum("nki,nkij,nkj->nk", nu, np.broadcast_to(Rinv, nu.shape[:2] + (2, 2)), nu)
     return mapped[np.argmin(d2, axis=1)].astype(np.int64)  # one R per sighting: the likelihood falls with d²
@@ -199,7 +199,7 @@ def association_accuracy_oracle(poses, z, R, landmarks, true_index) -> float:
 def association_accuracy_ceiling(t, poses, sighting_t, z, R, landmarks, true_index) -> float:
     """The fraction of landmark sightings that maximum-likelihood association gets right at a filter's own
     poses against its own map: :func:`association_accuracy_oracle` with the pose of the filter's last step at
-    or before each sighting, ``poses`` (N, 3) at times ``t`` (N,), and its final map ``landmarks`` (K, 2) in the
+    or before each sighting, ``poses`` (n, 3) at times ``t`` (n,), and its final map ``landmarks`` (N, 2) in the
     surveyed order (NaN rows: not mapped, never chosen).
 
     Run on the result of FastSLAM *with* known correspondences, it bounds what any association decided in
@@ -264,14 +264,14 @@ class OnlineCeiling(Hook):
         parts = run.particles
         if not isinstance(parts, ParticleSet):  # the landmark trees: read as arrays
             parts = parts.to_particle_set()
-        M, K = parts.seen.shape
+        M, N = parts.seen.shape
         truth = np.asarray(stream.landmark[a:b], dtype=np.int64)
         mapped = parts.seen[:, truth].any(axis=0)
         self.first_sightings += int(np.sum(~mapped))
         if not mapped.any():
             return
-        P = initial_particles(M, K, np.zeros(3))  # slot k holds landmark k, every landmark confirmed
-        P.poses[:], P.sigma[:], P.n[:], P.ident[:] = parts.poses, parts.sigma, K, np.arange(K)
+        P = initial_particles(M, N, np.zeros(3))  # slot k holds landmark k, every landmark confirmed
+        P.poses[:], P.sigma[:], P.n[:], P.ident[:] = parts.poses, parts.sigma, N, np.arange(N)
         P.mu[:] = np.where(parts.seen[..., None], parts.mu, np.nan)  # a landmark a particle has not mapped: never chosen
         P.evidence[:], P.last_t[:] = self.rules.n_confirm, run.last_seen
         w = np.asarray(run.w, dtype=float)
@@ -282,7 +282,7 @@ class OnlineCeiling(Hook):
 
 
 def association_table(history, true_index, map_ident, n_landmarks: int) -> np.ndarray:
-    """Counts (L, K + 1): how many sightings of surveyed landmark ``j`` (column ``j``; the last column: clutter)
+    """Counts (L, N + 1): how many sightings of surveyed landmark ``j`` (column ``j``; the last column: clutter)
     went to map landmark ``l`` (row, in the order of ``map_ident``). Sightings assigned to no map landmark
     (a landmark later removed, or still provisional) are not counted.
 

@@ -152,7 +152,7 @@ def pose_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
 def align_pose(pose, cov, R, t, angle) -> tuple[np.ndarray, np.ndarray]:
     """A pose and its covariance moved by the rigid motion ``p ↦ R p + t`` (rotation ``angle``).
 
-    ``(R, t, angle)`` as returned by :func:`fastslam_edu.evaluation.metrics.align_se2`:
+    ``(R, t, angle)`` as returned by :func:`fastslam_edu.core.se2.align_se2`:
     position :math:`R p + t`, heading :math:`\\theta + \\alpha`; the covariance becomes
     :math:`J P J^\\top` with :math:`J = \\mathrm{diag}(R, 1)`.
     """
@@ -176,8 +176,8 @@ class SpreadRecorder:
     sighting between them get the same step; times after the last measurement
     step get none). A record is the step's time, the cloud's mean pose and
     covariance (:func:`pose_covariance`) and, with ``maps=True``, the combined
-    map (:func:`fastslam_edu.landmark.fastslam.combined_map`: means (K, 2), covariances
-    (K, 2, 2), observed (K,)). It reads the particles and never writes them.
+    map (:func:`fastslam_edu.landmark.fastslam.combined_map`: means (N, 2), covariances
+    (N, 2, 2), observed (N,)). It reads the particles and never writes them.
 
     Attributes (lists, one entry per record): ``t``, ``mean``, ``cov``, ``maps``.
     """

@@ -29,7 +29,8 @@ from __future__ import annotations
 import numpy as np
 
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.core.se2 import DEFAULT_TIME_TOLERANCE, interpolate_poses
+from fastslam_edu.core.checks import float_array, point_rows
+from fastslam_edu.core.se2 import DEFAULT_TIME_TOLERANCE, align_se2, apply_se2, interpolate_poses  # noqa: F401 (align_se2, apply_se2: re-exported)
 
 __all__ = [
     "landmark_errors",
@@ -45,27 +46,6 @@ __all__ = [
 # --------------------------------------------------------------------------- input checks
 
 
-def _as_float_array(a, name: str) -> np.ndarray:
-    try:
-        return np.asarray(a, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be an array of real numbers, got {a!r}") from exc
-
-
-def _points(a, name: str, *, allow_nan: bool = False) -> np.ndarray:
-    """An (n, 2) array of finite points (NaN rows allowed on request)."""
-    p = _as_float_array(a, name)
-    if p.ndim != 2 or p.shape[1] != 2:
-        raise ValueError(f"{name} must have shape (n, 2) (x, y in metres), got shape {p.shape}")
-    bad = ~np.isfinite(p).all(axis=1)
-    if allow_nan:
-        bad &= ~np.isnan(p).any(axis=1)
-    if np.any(bad):
-        rows = np.flatnonzero(bad)
-        raise ValueError(f"{name} has {rows.size} row(s) with NaN or inf values, e.g. row(s) {rows[:5].tolist()}")
-    return p
-
-
 def _observed_mask(observed, k: int) -> np.ndarray:
     if observed is None:
         return np.ones(k, dtype=bool)
@@ -76,8 +56,8 @@ def _observed_mask(observed, k: int) -> np.ndarray:
 
 
 def _landmark_pair(estimate, truth, observed) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    est = _points(estimate, "estimate", allow_nan=True)
-    tru = _points(truth, "truth", allow_nan=True)
+    est = point_rows(estimate, "estimate", allow_nan=True)
+    tru = point_rows(truth, "truth", allow_nan=True)
     if est.shape != tru.shape:
         raise ValueError(f"estimate and truth must have the same shape (K, 2), got {est.shape} and {tru.shape}")
     mask = _observed_mask(observed, est.shape[0])
@@ -89,101 +69,6 @@ def _landmark_pair(estimate, truth, observed) -> tuple[np.ndarray, np.ndarray, n
                 f"pass observed=... to exclude landmarks that were never seen"
             )
     return est, tru, mask
-
-
-# --------------------------------------------------------------------------- alignment
-
-
-def align_se2(source, target, weights=None) -> tuple[np.ndarray, np.ndarray, float]:
-    """Rigid motion that best maps ``source`` onto ``target`` (least squares, no scale).
-
-    Solves
-
-    .. math::
-
-        \\min_{R \\in SO(2),\\, t} \\sum_j w_j \\, \\| R s_j + t - y_j \\|^2
-
-    in closed form (Kabsch / Umeyama without scale): with weighted centroids
-    ``s̄, ȳ`` and the 2×2 cross-covariance ``H = Σ_j w_j (s_j − s̄)(y_j − ȳ)ᵀ
-    = U Σ Vᵀ`` (SVD),
-
-    .. math::
-
-        R = V \\operatorname{diag}(1, \\det(V U^T))\\, U^T, \\qquad t = ȳ - R s̄.
-
-    The ``diag(1, ±1)`` factor enforces ``det R = +1``: without it a mirrored
-    point set would be "aligned" by a reflection, which no robot can undergo.
-
-    Parameters
-    ----------
-    source : array_like, shape (n, 2)
-        Points to move (e.g. estimated landmarks or path) [m].
-    target : array_like, shape (n, 2)
-        Corresponding points to fit (groundtruth) [m].
-    weights : array_like, shape (n,), optional
-        Non-negative weights ``w_j`` (default all 1), not all zero.
-
-    Returns
-    -------
-    R : ndarray, shape (2, 2)
-        Rotation matrix, ``det R = +1``.
-    t : ndarray, shape (2,)
-        Translation [m].
-    angle : float
-        Rotation angle [rad] in (-π, π]: ``R = [[cos, -sin], [sin, cos]]``.
-
-    Notes
-    -----
-    With one point (or all source points identical) the rotation is not
-    determined; ``R = I`` is returned and ``t`` matches the centroids.
-    """
-    s = _points(source, "source")
-    y = _points(target, "target")
-    if s.shape != y.shape or s.shape[0] == 0:
-        raise ValueError(f"source and target must be non-empty with the same shape (n, 2), got {s.shape} and {y.shape}")
-    if weights is None:
-        w = np.ones(s.shape[0])
-    else:
-        w = _as_float_array(weights, "weights")
-        if w.shape != (s.shape[0],):
-            raise ValueError(f"weights must have shape ({s.shape[0]},), got {w.shape}")
-        if not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
-            raise ValueError(f"weights must be finite, non-negative and not all zero, got {w}")
-    w = w / w.sum()
-    s_bar = w @ s
-    y_bar = w @ y
-    H = (s - s_bar).T @ (w[:, None] * (y - y_bar))
-    scale = (1.0 + np.abs(s).max()) * (1.0 + np.abs(y).max())
-    if np.abs(H).max() <= 64 * np.finfo(float).eps * scale:
-        R = np.eye(2)  # H = 0 up to round-off: every rotation fits equally well
-    else:
-        U, _, Vt = np.linalg.svd(H)
-        d = 1.0 if np.linalg.det(Vt.T @ U.T) >= 0 else -1.0
-        R = Vt.T @ np.diag([1.0, d]) @ U.T
-    t = y_bar - R @ s_bar
-    angle = float(np.arctan2(R[1, 0], R[0, 0]))
-    return R, t, float(wrap_angle(angle))
-
-
-def apply_se2(points, R, t) -> np.ndarray:
-    """Apply the rigid motion ``p ↦ R p + t`` to points.
-
-    Parameters
-    ----------
-    points : array_like, shape (..., 2)
-    R : array_like, shape (2, 2)
-    t : array_like, shape (2,)
-
-    Returns
-    -------
-    ndarray, shape (..., 2)
-    """
-    p = _as_float_array(points, "points")
-    R = _as_float_array(R, "R")
-    t = _as_float_array(t, "t")
-    if p.shape[-1:] != (2,) or R.shape != (2, 2) or t.shape != (2,):
-        raise ValueError(f"expected points (..., 2), R (2, 2), t (2,); got {p.shape}, {R.shape}, {t.shape}")
-    return p @ R.T + t
 
 
 # --------------------------------------------------------------------------- landmarks
@@ -268,8 +153,8 @@ def _stats(e: np.ndarray) -> tuple[float, float, float]:
 
 def _estimated_path(t_est, poses_est) -> tuple[np.ndarray, np.ndarray]:
     """``t_est`` (n,) and ``poses_est`` (n, 3) or (n, 2) as float arrays, n ≥ 1, poses finite."""
-    te = _as_float_array(t_est, "t_est")
-    pe = _as_float_array(poses_est, "poses_est")
+    te = float_array(t_est, "t_est")
+    pe = float_array(poses_est, "poses_est")
     if pe.ndim != 2 or pe.shape[1] not in (2, 3) or te.shape != (pe.shape[0],) or te.size == 0:
         raise ValueError(
             f"t_est must have shape (n,) and poses_est shape (n, 3) or (n, 2) with n ≥ 1, got {te.shape} and {pe.shape}"

@@ -3,7 +3,7 @@
 To score a map whose landmarks carry no names (unknown correspondences), each map landmark is matched to a surveyed
 one (:func:`fastslam_edu.evaluation.association.match_landmarks`). SLAM recovers the map only up to a rigid motion
 of the plane, :math:`T(p) = R(\\varphi)\\,p + \\tau`, so the map is first moved by the motion that best fits it to the
-survey, and that motion needs correspondences to be fitted (:func:`fastslam_edu.evaluation.metrics.align_se2`).
+survey, and that motion needs correspondences to be fitted (:func:`fastslam_edu.core.se2.align_se2`).
 The motion that fits the filter's *path* to the groundtruth gives a start, but a filter whose heading drifted
 while it mapped ends with a map turned away from its average path (on MR.CLAM by up to a radian and more): from
 that start every landmark is matched to a neighbour of its own, or to nothing.
@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from fastslam_edu.core.checks import finite_array
-from fastslam_edu.evaluation.metrics import align_se2
+from fastslam_edu.core.se2 import align_se2
 
 
 @njit(cache=True)
@@ -158,7 +158,7 @@ def consensus_motion(A, B, radius, min_baseline):
 def register(estimate, truth, radius: float = 0.5, min_baseline: float = 1.0):
     """``(R (2, 2), t (2,))``: the motion :math:`p \\mapsto R p + t` that lays the map ``estimate`` (L, 2) [m] on the
     surveyed landmarks ``truth`` (K, 2) [m], or None if no two map landmarks propose one: :func:`consensus_motion`,
-    refitted by least squares (:func:`fastslam_edu.evaluation.metrics.align_se2`) to the map landmarks it lays
+    refitted by least squares (:func:`fastslam_edu.core.se2.align_se2`) to the map landmarks it lays
     within ``radius`` of a surveyed one, each paired with the nearest."""
     A = np.ascontiguousarray(finite_array("estimate", estimate, "register", (2,)).reshape(-1, 2))
     B = np.ascontiguousarray(finite_array("truth", truth, "register", (2,)).reshape(-1, 2))

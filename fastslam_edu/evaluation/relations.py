@@ -36,7 +36,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from fastslam_edu.evaluation.metrics import align_se2, apply_se2
+from fastslam_edu.core.se2 import align_se2, apply_se2
 from fastslam_edu.core.se2 import relative
 
 __all__ = ["DEFAULT_TOLERANCE", "match_times", "relation_errors", "reference_errors", "score_trajectory"]
@@ -158,7 +158,7 @@ def reference_errors(t, poses, t_ref, poses_ref, *, tolerance: float = DEFAULT_T
     estimate's time stamps are the first ones of the reference (one log
     holding scans and reference poses, possibly cut short); the estimated positions
     are moved by the rigid motion that best fits them onto the reference
-    (:func:`fastslam_edu.evaluation.metrics.align_se2`, least squares), and
+    (:func:`fastslam_edu.core.se2.align_se2`, least squares), and
 
     ``e_j = ‖R p̂_j + t − p_j‖``, ``rmse = √(mean e_j²)``.
 

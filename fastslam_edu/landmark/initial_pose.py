@@ -9,14 +9,14 @@ robot that sees two of them knows where it is:
 
 1. **Dead-reckon** the first seconds of odometry from an arbitrary start frame
    :math:`S` (:math:`x = 0, y = 0, \\theta = 0` at the first step): pose :math:`x^S_j` at
-   the time of sighting :math:`j` (noise-free, :func:`fastslam_edu.evaluation.noise_estimation.dead_reckoning`).
+   the time of sighting :math:`j` (noise-free, :func:`fastslam_edu.core.motion.dead_reckon_at`).
 2. **Place each sighting** :math:`z_j = (r_j, \\phi_j)` of landmark :math:`k_j` in :math:`S` with the
    inverse measurement model, :math:`p_j = h^{-1}(x^S_j, z_j)`
    (:func:`fastslam_edu.core.measurement.landmark_from_measurement`), and take the
    median over the sightings of each landmark: one point :math:`\\bar p_k` per landmark.
 3. **Align** the points onto the surveyed positions :math:`m_k` with the rigid
    motion :math:`(R, t)` that minimises :math:`\\sum_k \\| R \\bar p_k + t - m_k \\|^2`
-   (:func:`fastslam_edu.evaluation.metrics.align_se2`): the start frame's origin and axis in
+   (:func:`fastslam_edu.core.se2.align_se2`): the start frame's origin and axis in
    the world, :math:`x_0 = (t_x, t_y, \\angle R)`.
 
 With two landmarks the rotation rests on their separation: a few centimetres
@@ -40,8 +40,8 @@ import numpy as np
 
 from fastslam_edu.datasets.log import RobotLog
 from fastslam_edu.core.measurement import landmark_from_measurement
-from fastslam_edu.evaluation.metrics import align_se2, apply_se2
-from fastslam_edu.evaluation.noise_estimation import dead_reckoning
+from fastslam_edu.core.motion import dead_reckon_at
+from fastslam_edu.core.se2 import align_se2, apply_se2
 
 #: Seconds of the log looked at first, and at most.
 WINDOW_S = 10.0
@@ -148,7 +148,7 @@ def _fit(odo, seen, landmarks, row, t0, min_landmarks, min_separation_m):
     if len(seen) == 0:
         return None
     times = seen["time"].to_numpy(dtype=float)
-    poses = dead_reckoning(odo, np.concatenate([[t0], times]))[1:]  # start frame: x0 = (0, 0, 0) at t0
+    poses = dead_reckon_at(odo, np.concatenate([[t0], times]))[1:]  # start frame: x0 = (0, 0, 0) at t0
     z = seen[["range", "bearing"]].to_numpy(dtype=float)
     points = landmark_from_measurement(poses, z)
     keys = seen["subject"].to_numpy(dtype=int)
