@@ -125,6 +125,7 @@ class SmootherResult:
     calibration : dict name → value of the estimated model parameters (``SolverSettings.calibrate``; else None):
         :math:`k_v, k_\\omega` [-], :math:`\\tau` [s], ``travel_offset``, ``bearing_bias`` [rad]
     calibration_std : dict name → their standard deviations (Laplace), or None
+    backend : which solver ran, ``"scipy"`` (the package's own) or ``"gtsam"`` (:mod:`.smoother_gtsam`)
     """
 
     t: np.ndarray
@@ -144,6 +145,7 @@ class SmootherResult:
     seconds: float
     calibration: dict | None = None
     calibration_std: dict | None = None
+    backend: str = "scipy"
 
 
 # --------------------------------------------------------------------------- the problem's pieces
@@ -583,13 +585,16 @@ class SolverSettings(Params):
     relative cost change), which model parameters it estimates with the path and map (``calibrate``: names
     from ``CALIBRATION_NAMES``, e.g. ``ODOMETRY_CALIBRATION``; each with a weak prior, ``CALIBRATION_STD``),
     and whether it weighs the sightings with the filter's tempering :math:`\\beta_i` (``tempering``, the default:
-    the filter's own model) or counts each as independent, :math:`\\beta_i = 1` (``BEST_ESTIMATE``)."""
+    the filter's own model) or counts each as independent, :math:`\\beta_i = 1` (``BEST_ESTIMATE``).
+    ``huber=False`` skips the first round's Huber loss: plain least squares on every sighting, then the gate
+    (:func:`solve_with_gate`; to compare solvers on one smooth cost)."""
 
     max_iterations: int = 100
     max_rounds: int = 10
     tol: float = 1e-10
     calibrate: tuple = ()
     tempering: bool = True
+    huber: bool = True
 
     def __post_init__(self):
         object.__setattr__(self, "calibrate", tuple(self.calibrate))
@@ -619,6 +624,7 @@ def smooth(
     max_gap_s: float = 1.0,
     pose_std: bool = False,
     solver: SolverSettings = SolverSettings(),
+    backend: str = "scipy",
 ) -> SmootherResult:
     """The least-squares path and map of a whole log under ``params``' model (see the module docstring).
 
@@ -653,8 +659,14 @@ def smooth(
     solver : SolverSettings
         When Levenberg–Marquardt and the gating rounds stop, which model parameters are estimated with the path and
         map (``calibrate``), and whether the sightings are tempered (``BEST_ESTIMATE``: not).
+    backend : ``"scipy"`` or ``"gtsam"``
+        Who minimises each round and computes the Laplace covariances: the package's Levenberg–Marquardt on scipy's
+        sparse normal equations, or GTSAM's on the same problem as a factor graph
+        (:mod:`fastslam_edu.landmark.smoother_gtsam`; needs the extra ``graph``; no ``calibrate``). The gate's rounds
+        are the package's on both.
     """
     started = time.perf_counter()
+    minimise, laplace = _backend(backend, solver)
     params = FastSLAMParams() if params is None else params
     x0 = stream.x0 if x0 is None else np.asarray(x0, dtype=float)
     if x0 is None:
@@ -674,9 +686,9 @@ def smooth(
         problem.calibration0 = np.array([*params.odometry_scale, 0.0, 0.0, 0.0])
         problem.odometry = OdometryModel(stream, keys) if np.any(problem.free < 4) else None
     v = starting_point(problem, path, keys, seen, initial)
-    v, active, iterations, rounds, cost = solve_with_gate(problem, v, params.gate_chi2, solver)
+    v, active, iterations, rounds, cost = solve_with_gate(problem, v, params.gate_chi2, solver, minimise)
     poses, lms = problem.split(v)
-    std, cov_lm, cov_c = _laplace(problem, v, active, with_poses=pose_std)
+    std, cov_lm, cov_c = laplace(problem, v, active, with_poses=pose_std)
     landmarks, landmarks_cov, observed = _landmark_table(problem, seen, active, lms, cov_lm, stream.n_landmarks)
     c, names = problem.calibration(v), [CALIBRATION_NAMES[i] for i in problem.free]
     return SmootherResult(
@@ -687,7 +699,23 @@ def smooth(
         seconds=time.perf_counter() - started,
         calibration=None if c is None else {name: float(c[i]) for name, i in zip(names, problem.free)},
         calibration_std=None if c is None else dict(zip(names, np.sqrt(np.diag(cov_c)).tolist())),
+        backend=backend,
     )
+
+
+def _backend(backend: str, solver: SolverSettings):
+    """``(minimise, laplace)`` of ``backend``: the package's, or GTSAM's (:mod:`.smoother_gtsam`)."""
+    if backend == "scipy":
+        return _levenberg_marquardt, _laplace
+    if backend != "gtsam":
+        raise ValueError(f"smooth: backend must be 'scipy' or 'gtsam', got {backend!r}")
+    if solver.calibrate:
+        raise ValueError(f"smooth: backend='gtsam' cannot estimate SolverSettings.calibrate={solver.calibrate!r}: "
+                         "use backend='scipy'")
+    from fastslam_edu.landmark import smoother_gtsam
+
+    smoother_gtsam.require_gtsam()
+    return smoother_gtsam.levenberg_marquardt, smoother_gtsam.laplace
 
 
 def _landmark_table(problem, seen, active, lms, cov_lm, K: int):
@@ -745,15 +773,18 @@ def starting_point(problem, path, keys, seen, initial: FastSLAMResult | None) ->
     return np.concatenate([poses.ravel(), lms.ravel(), *extra])
 
 
-def solve_with_gate(problem, v, gate: float | None, solver: SolverSettings):
-    """Round 1: Huber at the gate's radius; then the gate itself, until the rejected set settles.
+def solve_with_gate(problem, v, gate: float | None, solver: SolverSettings, minimise=None):
+    """Round 1: Huber at the gate's radius (unless ``solver.huber`` is False); then the gate itself, until the
+    rejected set settles. Each round is minimised by ``minimise`` (default ``_levenberg_marquardt``; or
+    :func:`fastslam_edu.landmark.smoother_gtsam.levenberg_marquardt`, the same signature).
 
     Returns ``(v, active, iterations, rounds, cost)``.
     """
+    minimise = _levenberg_marquardt if minimise is None else minimise
     active = np.ones(len(problem.z), dtype=bool)
     problem.anchor = problem.split(v)[1].copy()
-    v, iterations, cost = _levenberg_marquardt(problem, v, active, huber=None if gate is None else np.sqrt(gate),
-                                               max_iterations=solver.max_iterations, tol=solver.tol)
+    huber = None if gate is None or not solver.huber else np.sqrt(gate)
+    v, iterations, cost = minimise(problem, v, active, huber=huber, max_iterations=solver.max_iterations, tol=solver.tol)
     rounds = 1
     while gate is not None and rounds < solver.max_rounds:
         new_active = problem.gate_d2(v) <= gate
@@ -761,8 +792,7 @@ def solve_with_gate(problem, v, gate: float | None, solver: SolverSettings):
             break
         active = new_active
         problem.anchor = problem.split(v)[1].copy()
-        v, it, cost = _levenberg_marquardt(problem, v, active, huber=None, max_iterations=solver.max_iterations,
-                                           tol=solver.tol)
+        v, it, cost = minimise(problem, v, active, huber=None, max_iterations=solver.max_iterations, tol=solver.tol)
         iterations += it
         rounds += 1
     return v, active, iterations, rounds, cost

@@ -1,0 +1,233 @@
+"""The smoother's least-squares problem as a GTSAM factor graph: a second, independent solver.
+
+:func:`fastslam_edu.landmark.smoother.smooth` minimises
+
+.. math::
+
+    \\tfrac12 \\|x_0 - \\bar x_0\\|^2_{P_0}
+    + \\tfrac12 \\sum_k \\|(x_{k-1}^{-1} \\oplus x_k) \\ominus \\Delta_k\\|^2_{C_k}
+    + \\tfrac12 \\sum_i \\beta_i \\|z_i \\ominus h(x_{k_i}, l_{j_i})\\|^2_{R_i}
+    + \\tfrac12 \\sum_k \\|l_k - \\bar l_k\\|^2 / \\sigma_a^2
+
+by its own Levenberg–Marquardt on scipy's sparse normal equations. With ``backend="gtsam"`` the same terms
+become factors of GTSAM (Dellaert & Kaess, *Factor Graphs for Robot Perception*, 2017), solved by
+``gtsam.LevenbergMarquardtOptimizer`` from the package's starting point, and the Laplace covariances come from
+``gtsam.Marginals``. Each factor's error :math:`e_g` against the package's residual :math:`e`:
+
+* **prior on** :math:`x_0`, ``PriorFactorPose2``: :math:`e_g = \\operatorname{Log}(\\bar x_0^{-1} x_0)`, in the frame
+  of :math:`\\bar x_0`; the package's :math:`e = x_0 - \\bar x_0` (heading wrapped) is in the world frame. To first order
+  :math:`e_g = T(\\bar\\theta_0)\\, e` with :math:`T(\\theta) = \\mathrm{blockdiag}(R(\\theta)^\\top, 1)`, so the factor gets
+  the covariance :math:`T P_0 T^\\top` (:func:`rotated_covariance`; :math:`P_0` is diagonal with ``x0_std``).
+* **odometry**, ``BetweenFactorPose2``: :math:`e_g = \\operatorname{Log}(\\Delta_k^{-1}(x_{k-1}^{-1} x_k))` — the SE(2)
+  logarithm, in the frame of :math:`\\Delta_k`'s end — against the package's componentwise
+  :math:`e = (x_{k-1}^{-1} \\oplus x_k) - \\Delta_k` (angle wrapped) in the frame of :math:`x_{k-1}`. With
+  :math:`(t, \\phi) = \\Delta_k^{-1}(x_{k-1}^{-1} x_k)`, :math:`t = R(\\theta_{\\Delta_k})^\\top e_{xy}` and
+  :math:`\\phi = e_\\theta`, and :math:`\\operatorname{Log}` gives :math:`(V(\\phi)^{-1} t, \\phi)`,
+  :math:`V(\\phi)^{-1} = \\tfrac{\\phi}{2}\\cot\\tfrac{\\phi}{2}\\, I - \\tfrac{\\phi}{2} S`, :math:`S` the 90° turn. So
+  :math:`e_g = T(\\theta_{\\Delta_k})\\, e` plus a term of order :math:`\\phi\\, |e_{xy}|`: the factor gets
+  :math:`T C_k T^\\top` and the two costs differ by a relative :math:`O(\\phi)` per factor, :math:`\\phi` the
+  heading residual (milliradians at the optimum). On the simulator's tests the optima differ by < 0.01 mm and the
+  costs by < 1e-9 relative (``tests/test_smoother_gtsam.py``); on MR.CLAM see ``benchmarks/smoother_backends.py``.
+* **sightings**, ``BearingRangeFactor2D``: :math:`e_g = (\\operatorname{wrap}(\\hat b - b),\\; \\hat r - r)`, bearing
+  first, the sign flipped: :math:`e_g = -P e` with :math:`P` the swap, exactly; the factor gets the covariance
+  :math:`P R_i P^\\top / \\beta_i` (the tempered :math:`R_i`, :math:`\\beta_i` the filter's tempering). Only the
+  sightings inside the gate (the ``active`` set) become factors.
+* **landmark anchors** (``LANDMARK_ANCHOR_STD``), ``PriorFactorPoint2``: :math:`e_g = l_k - \\bar l_k`, exactly.
+
+The cost both report is :math:`\\tfrac12 \\sum \\|W e\\|^2` over all the factors above (whitened residuals,
+prior and anchors included): the package's ``cost``, and GTSAM's ``NonlinearFactorGraph.error``. In the Huber round
+(``SolverSettings.huber``) the sightings' noise models are ``noiseModel.Robust`` with ``mEstimator.Huber`` at
+:math:`\\sqrt{\\chi^2_{gate}}`: the same loss :math:`\\rho` on :math:`\\|W e\\|` as the package's.
+
+The gate is applied the same way on both backends: :func:`fastslam_edu.landmark.smoother.solve_with_gate` decides
+the active set from the package's :math:`d^2` at each round's solution, and only the minimisation of a round
+(:func:`levenberg_marquardt`) and the Laplace covariances (:func:`laplace`) are GTSAM's. The estimated calibration
+(``SolverSettings.calibrate``) has no GTSAM factor here and is refused.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fastslam_edu.core.angles import wrap_angle
+from fastslam_edu.landmark.smoother import LANDMARK_ANCHOR_STD
+
+#: Which factor carries the odometry: ``"componentwise"``, a ``gtsam.CustomFactor`` with the package's residual
+#: :math:`e = (x_{k-1}^{-1} \\oplus x_k) - \\Delta_k` (:func:`odometry_factor`): both backends minimise the same cost;
+#: or ``"between"``, GTSAM's own ``BetweenFactorPose2`` (SE(2) logarithm; see the module docstring for the difference).
+ODOMETRY_FACTOR = "componentwise"
+#: The one line shown when GTSAM is missing (the CLI prints it and exits 2).
+MISSING_GTSAM = "backend='gtsam' needs GTSAM: pip install 'fastslam-edu[graph]'"
+#: (bearing, range) from the package's (range, bearing).
+_SWAP = np.array([[0.0, 1.0], [1.0, 0.0]])
+
+
+def require_gtsam():
+    """The ``gtsam`` module, or an ImportError with :data:`MISSING_GTSAM`."""
+    try:
+        import gtsam
+    except ImportError as err:
+        raise ImportError(MISSING_GTSAM) from err
+    return gtsam
+
+
+def pose_key(i: int) -> int:
+    """GTSAM key of keyframe pose :math:`x_i`."""
+    return require_gtsam().symbol("x", i)
+
+
+def landmark_key(j: int) -> int:
+    """GTSAM key of the landmark in column ``j`` of the problem."""
+    return require_gtsam().symbol("l", j)
+
+
+def covariance_of_whitening(W: np.ndarray) -> np.ndarray:
+    """:math:`C = (W^\\top W)^{-1}` from a whitening :math:`W` (:func:`~fastslam_edu.landmark.smoother.whitening`).
+    Shape (..., d, d)."""
+    return np.linalg.inv(np.swapaxes(W, -1, -2) @ W)
+
+
+def rotated_covariance(C: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """:math:`T C T^\\top`, :math:`T = \\mathrm{blockdiag}(R(\\theta)^\\top, 1)`: a pose error's covariance in the world
+    frame (or the frame of :math:`x_{k-1}`) re-expressed in a frame turned by :math:`\\theta` [rad].
+    ``C`` (..., 3, 3), ``theta`` (...,)."""
+    c, s = np.cos(theta), np.sin(theta)
+    T = np.zeros(np.shape(theta) + (3, 3))
+    T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1], T[..., 2, 2] = c, s, -s, c, 1.0
+    return T @ C @ np.swapaxes(T, -1, -2)
+
+
+def factor_graph(problem, active: np.ndarray, huber: float | None = None):
+    """The smoother's problem (``smoother._Problem``, calibration not estimated) as a ``gtsam.NonlinearFactorGraph``:
+    prior, odometry factors, the ``active`` sightings (robust Huber at ``huber`` if given) and the landmark anchors
+    at ``problem.anchor`` (see the module docstring for how each error relates to the package's)."""
+    gtsam = require_gtsam()
+    noise = gtsam.noiseModel
+    graph = gtsam.NonlinearFactorGraph()
+    x0 = np.asarray(problem.x0, dtype=float)
+    P0 = rotated_covariance(covariance_of_whitening(problem.W0), x0[2])
+    graph.add(gtsam.PriorFactorPose2(pose_key(0), gtsam.Pose2(*x0), noise.Gaussian.Covariance(P0)))
+    C = covariance_of_whitening(problem.Wo)
+    if ODOMETRY_FACTOR == "between":
+        C = rotated_covariance(C, problem.delta[:, 2])
+    elif ODOMETRY_FACTOR != "componentwise":
+        raise ValueError(f"ODOMETRY_FACTOR must be 'componentwise' or 'between', got {ODOMETRY_FACTOR!r}")
+    for k, (d, Ck) in enumerate(zip(problem.delta, C)):
+        if ODOMETRY_FACTOR == "between":
+            graph.add(gtsam.BetweenFactorPose2(pose_key(k), pose_key(k + 1), gtsam.Pose2(*d),
+                                               noise.Gaussian.Covariance(Ck)))
+        else:
+            graph.add(odometry_factor(pose_key(k), pose_key(k + 1), d, Ck))
+    R = _SWAP @ covariance_of_whitening(problem.Wm[active]) @ _SWAP  # R_i / β_i, (bearing, range)
+    for i, (k, j, z, Ri) in enumerate(zip(problem.pose_of[active], problem.col_of[active], problem.z[active], R)):
+        model = noise.Gaussian.Covariance(Ri)
+        if huber is not None:
+            model = noise.Robust.Create(noise.mEstimator.Huber.Create(huber), model)
+        graph.add(gtsam.BearingRangeFactor2D(pose_key(int(k)), landmark_key(int(j)), gtsam.Rot2(z[1]), z[0], model))
+    anchor = noise.Isotropic.Sigma(2, LANDMARK_ANCHOR_STD)
+    for j, a in enumerate(problem.anchor):
+        graph.add(gtsam.PriorFactorPoint2(landmark_key(j), np.asarray(a, dtype=float), anchor))
+    return graph
+
+
+def odometry_factor(key_a: int, key_b: int, delta, C):
+    """The package's odometry factor as a ``gtsam.CustomFactor``: error
+    :math:`e = (x_a^{-1} \\oplus x_b) - \\Delta` (heading wrapped; ``smoother.odometry_residuals``), covariance
+    ``C`` (3, 3) in the frame of :math:`x_a`.
+
+    GTSAM perturbs a pose in its own frame, :math:`x \\exp(\\delta)`: :math:`\\delta x_{world} = T(\\theta)^\\top \\delta`,
+    so its Jacobians are the package's times :math:`\\mathrm{blockdiag}(R(\\theta), 1)`:
+
+    .. math::
+
+        \\frac{\\partial e}{\\partial \\delta_a} = \\begin{pmatrix} -1 & 0 & r_y \\\\ 0 & -1 & -r_x \\\\ 0 & 0 & -1 \\end{pmatrix},
+        \\qquad
+        \\frac{\\partial e}{\\partial \\delta_b} = \\mathrm{blockdiag}(R(\\theta_b - \\theta_a), 1),
+
+    with :math:`r = x_a^{-1} \\oplus x_b`.
+    """
+    gtsam = require_gtsam()
+    dx, dy, dth = (float(c) for c in delta)
+
+    def error(factor, values, jacobians):
+        keys = factor.keys()
+        a, b = values.atPose2(keys[0]), values.atPose2(keys[1])
+        ca, sa = math.cos(a.theta()), math.sin(a.theta())
+        tx, ty = b.x() - a.x(), b.y() - a.y()
+        rx, ry, rth = ca * tx + sa * ty, -sa * tx + ca * ty, b.theta() - a.theta()
+        if jacobians is not None:
+            c, s = math.cos(rth), math.sin(rth)
+            jacobians[0] = np.array([[-1.0, 0.0, ry], [0.0, -1.0, -rx], [0.0, 0.0, -1.0]])
+            jacobians[1] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return np.array([rx - dx, ry - dy, math.remainder(rth - dth, 2 * math.pi)])
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(np.asarray(C, dtype=float)), [key_a, key_b], error)
+
+
+def to_values(problem, v: np.ndarray):
+    """The package's variable vector ``v`` (poses, then landmarks) as ``gtsam.Values``."""
+    gtsam = require_gtsam()
+    poses, lms = problem.split(v)
+    values = gtsam.Values()
+    for i, p in enumerate(poses):
+        values.insert(pose_key(i), gtsam.Pose2(*p))
+    for j, m in enumerate(lms):
+        values.insert(landmark_key(j), np.asarray(m, dtype=float))
+    return values
+
+
+def from_values(problem, values, v_start: np.ndarray) -> np.ndarray:
+    """``gtsam.Values`` back to the package's vector; headings continued from ``v_start`` (GTSAM wraps them)."""
+    poses0, lms0 = problem.split(v_start)
+    poses = np.array([_pose_array(values.atPose2(pose_key(i))) for i in range(len(poses0))]).reshape(-1, 3)
+    poses[:, 2] = poses0[:, 2] + wrap_angle(poses[:, 2] - poses0[:, 2])
+    lms = np.array([values.atPoint2(landmark_key(j)) for j in range(len(lms0))], dtype=float).reshape(-1, 2)
+    return np.concatenate([poses.ravel(), lms.ravel()])
+
+
+def _pose_array(p) -> np.ndarray:
+    return np.array([p.x(), p.y(), p.theta()])
+
+
+def levenberg_marquardt(problem, v, active, *, huber, max_iterations, tol):
+    """One round of the smoother solved by ``gtsam.LevenbergMarquardtOptimizer`` from ``v``: the same signature and
+    returns as ``smoother._levenberg_marquardt``, ``(v, iterations, cost)``; ``cost`` is GTSAM's
+    :math:`\\tfrac12 \\sum \\|W e\\|^2` (or :math:`\\sum \\rho` with ``huber``). It stops when the cost's relative
+    decrease is below ``tol`` or after ``max_iterations``."""
+    gtsam = require_gtsam()
+    if problem.n_extra:
+        raise ValueError("backend='gtsam' cannot estimate SolverSettings.calibrate: use backend='scipy'")
+    graph = factor_graph(problem, active, huber)
+    start = to_values(problem, v)
+    if max_iterations == 0:
+        return v, 0, graph.error(start)
+    settings = gtsam.LevenbergMarquardtParams()
+    settings.setMaxIterations(max_iterations)
+    settings.setRelativeErrorTol(tol)
+    settings.setAbsoluteErrorTol(0.0)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, start, settings)
+    result = optimizer.optimize()
+    return from_values(problem, result, v), int(optimizer.iterations()), float(graph.error(result))
+
+
+def laplace(problem, v, active, with_poses=True):
+    """The Laplace covariances from ``gtsam.Marginals`` at ``v`` (the same returns as ``smoother._laplace``):
+    pose standard deviations (N, 3) [m, m, rad] in the world frame (NaN unless ``with_poses``), the landmarks'
+    covariances (L, 2, 2) [m²], and an empty (0, 0) calibration block.
+
+    GTSAM gives a pose's covariance :math:`\\Sigma_g` in its own frame (a perturbation :math:`x \\exp(\\delta)`);
+    in the world frame it is :math:`T(\\theta)^\\top \\Sigma_g T(\\theta)` (:func:`rotated_covariance` by
+    :math:`-\\theta`). A landmark's is in the world frame already."""
+    gtsam = require_gtsam()
+    values = to_values(problem, v)
+    marginals = gtsam.Marginals(factor_graph(problem, active), values)
+    poses, lms = problem.split(v)
+    cov_lm = np.array([marginals.marginalCovariance(landmark_key(j)) for j in range(len(lms))]).reshape(-1, 2, 2)
+    std = np.full((len(poses), 3), np.nan)
+    if with_poses:
+        local = np.array([marginals.marginalCovariance(pose_key(i)) for i in range(len(poses))])
+        world = rotated_covariance(local, -poses[:, 2])
+        std = np.sqrt(np.maximum(np.diagonal(world, axis1=1, axis2=2), 0.0))
+    return std, cov_lm, np.zeros((0, 0))
