@@ -13,13 +13,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fastslam_edu.grid.thor import (
+from fastslam_edu.grid import thor
+from fastslam_edu.grid.thor import filter_returns
+from fastslam_edu.datasets import thor_geometry
+from fastslam_edu.datasets.thor_geometry import (
     BODY_HEIGHT,
     FLOOR_Z,
     LIDAR_HEIGHT,
     body_to_world,
     beam_directions_world,
-    filter_returns,
     homogeneous,
     joints_at,
     lidar_points_world,
@@ -29,6 +31,12 @@ from fastslam_edu.grid.thor import (
     rot_y,
     rot_z,
 )
+
+
+def test_the_mapping_layer_reads_the_one_geometry():
+    """Chapter 18 writes ``thor.lidar_points_world``: grid.thor hands out the geometry's own objects, no copies."""
+    for name in thor_geometry.__all__:
+        assert getattr(thor, name) is getattr(thor_geometry, name), name
 
 
 def test_heights_from_the_course_handouts():

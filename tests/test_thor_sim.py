@@ -17,7 +17,8 @@ import pytest
 from fastslam_edu.datasets.laser import read_thor_lidar
 from fastslam_edu.grid.occupancy import OccupancyGrid
 from fastslam_edu.core.se2 import path_increments
-from fastslam_edu.grid.thor import filter_returns, joints_at, lidar_points_world
+from fastslam_edu.datasets.thor_geometry import joints_at, lidar_points_world
+from fastslam_edu.grid.thor import filter_returns
 from fastslam_edu.datasets.thor_sim import (
     FLOOR,
     NO_HIT,

@@ -21,7 +21,7 @@ from fastslam_edu.datasets.thor_sim import (FLOOR, FloorPlan, ThorSimConfig, def
                                            write_sequence)
 from fastslam_edu.grid.gridslam import GridSLAMParams
 from fastslam_edu.grid.occupancy import OccupancyGrid
-from fastslam_edu.grid.thor import LIDAR_HEIGHT, lidar_points_world
+from fastslam_edu.datasets.thor_geometry import LIDAR_HEIGHT, lidar_points_world
 from fastslam_edu.grid.gridslam import map_from_poses
 from fastslam_edu.grid.thor_slam import map_scores, planar_scans, thor_grid_slam, wall_cells
 

@@ -18,11 +18,11 @@ What is simulated
   pose is ``(0, 0, 0)``.
 * **Head.** Scans are taken at ``scan_rate`` (40 Hz) on the joint log's clock;
   each takes the neck yaw and head pitch of the joint sample nearest in time
-  (:func:`fastslam_edu.grid.thor.joints_at`), exactly what a reader of the real
+  (:func:`fastslam_edu.datasets.thor_geometry.joints_at`), exactly what a reader of the real
   logs does.
 * **LiDAR.** 1081 beams, −135° … +135° in 0.25° steps, from the LiDAR origin
   ``T_WL (0, 0, 0)`` at 1.41 m along ``d_b = T_WL α_b``
-  (:func:`fastslam_edu.grid.thor.beam_directions_world`). Each beam returns the
+  (:func:`fastslam_edu.datasets.thor_geometry.beam_directions_world`). Each beam returns the
   nearer of its wall hit and its floor hit (:func:`cast_rays`), plus Gaussian
   noise ``N(0, range_std²)``; beyond 30 m or over the walls (no ceiling)
   it returns nothing, written as ``no_return`` (0 m, below the 0.1 m minimum).
@@ -52,7 +52,7 @@ import numpy as np
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.laser import read_thor_joints, thor_angles, write_thor_lidar
 from fastslam_edu.core.se2 import compose_increments, path_increments
-from fastslam_edu.grid.thor import MAX_RANGE, beam_directions_world, nearest_sample
+from fastslam_edu.datasets.thor_geometry import MAX_RANGE, beam_directions_world, nearest_sample
 
 __all__ = [
     "NO_HIT",

@@ -36,7 +36,8 @@ from fastslam_edu.datasets.laser import LaserLog, ThorLidar
 from fastslam_edu.datasets.thor_sim import FloorPlan
 from fastslam_edu.grid.gridslam import GridSLAMParams, GridSLAMResult, run_grid_slam
 from fastslam_edu.grid.occupancy import OccupancyGrid
-from fastslam_edu.grid.thor import BAND_Z, FLOOR_Z, MAX_RANGE, PLANAR_BEARING_STEP, planar_laser_log
+from fastslam_edu.datasets.thor_geometry import FLOOR_Z, MAX_RANGE
+from fastslam_edu.grid.thor import BAND_Z, PLANAR_BEARING_STEP, planar_laser_log
 
 __all__ = [
     "NO_FLOOR_FILTER_BAND",
