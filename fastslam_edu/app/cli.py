@@ -80,6 +80,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="also solve the whole log by least squares from the filter's result (fastslam_edu.landmark.smoother, "
                           "BEST_ESTIMATE: the filter's model with every sighting counted in full): the book's best "
                           "estimate; its figures go under 'smoother'")
+    run.add_argument("--smoother-backend", choices=("scipy", "gtsam"), default=None,
+                     help="with --smooth, who solves the least squares: scipy (default: the package's own "
+                          "Levenberg-Marquardt) or gtsam (the same problem as GTSAM factors; needs the extra "
+                          "'graph'); the JSON's smoother part says which ran ('backend') and its time ('seconds')")
     run.add_argument("--resampler", choices=("systematic", "stratified", "residual", "roulette", "multinomial"), default=None,
                      help=f"default {FastSLAMParams().resampler} (FastSLAM only)")
     run.add_argument("--no-audit", action="store_true", help="do not correct swapped landmark table entries")
@@ -296,6 +300,16 @@ def cmd_run(args) -> int:
 
     if not args.data.is_dir():
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
+    if args.smoother_backend is not None and not args.smooth:
+        raise ValueError(f"--smoother-backend {args.smoother_backend} chooses the solver of --smooth: give --smooth too")
+    if args.smoother_backend == "gtsam":
+        from fastslam_edu.landmark.smoother_gtsam import require_gtsam
+
+        try:
+            require_gtsam()
+        except ImportError as exc:  # before the filter runs: one line, exit 2
+            print(f"fastslam-edu run: error: {exc}", file=sys.stderr)
+            return 2
     if args.filter == "ekf":
         return cmd_run_ekf(args)
     if args.correspondences == "unknown":
@@ -321,7 +335,8 @@ def cmd_run(args) -> int:
         from fastslam_edu.app.experiment import summarize_smoother
         from fastslam_edu.landmark.smoother import BEST_ESTIMATE, smooth
 
-        summary["smoother"] = summarize_smoother(smooth(ctx["stream"], params, initial=result, solver=BEST_ESTIMATE), ctx["dataset"], ctx["log"])
+        summary["smoother"] = summarize_smoother(smooth(ctx["stream"], params, initial=result, solver=BEST_ESTIMATE,
+                                                     backend=args.smoother_backend or "scipy"), ctx["dataset"], ctx["log"])
         rows += [(f"smoother.{k}", summary["smoother"].get(k)) for k in keys[:5] + ("smoother_seconds",)]
     _print_rows(rows)
     if args.json:

@@ -108,7 +108,8 @@ def summarize_smoother(result: SmootherResult, dataset: Dataset, log: RobotLog) 
     """The figures of a :func:`fastslam_edu.landmark.smoother.smooth` solution, scored as a filter run is."""
     counts = {"keyframes": int(len(result.t)), "measurements_used": result.measurements_used,
               "measurements_rejected": result.measurements_rejected, "iterations": result.iterations,
-              "smoother_seconds": round(result.seconds, 4)}
+              "smoother_seconds": round(result.seconds, 4), "backend": result.backend,
+              "seconds": round(result.seconds, 4)}
     out = _scored(counts, result, result.poses, result.landmarks, dataset, log)
     out["landmark_std_mean_m"] = landmark_std_mean(result.landmarks_cov, result.observed)
     return out
