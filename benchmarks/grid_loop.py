@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.grid.gridslam import (GridSLAMParams, GridSLAMResult, _beams, _prepare, ancestral_path,
-                                        correlation_kernel, grid_for_path, increment_noise_std)
+from fastslam_edu.grid.gridslam import GridSLAMParams, GridSLAMResult, _beams, _prepare, ancestral_path, grid_for_path
+from fastslam_edu.grid.motion import increment_noise_std
+from fastslam_edu.grid.scan_matching import correlation_kernel
 from fastslam_edu.grid.occupancy import OccupancyGrid, bresenham
 
 __all__ = ["run_grid_slam_loop"]

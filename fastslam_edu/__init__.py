@@ -2,19 +2,20 @@
 
 core            the building blocks
     angles          wrapping angles to (-pi, pi]
-    se2             SE(2) poses: compose, inverse, relative; poses interpolated in time
-    motion          the unicycle motion model, sampled for M particles (noise per sqrt(s))
+    se2             SE(2) poses: compose, inverse, relative; poses interpolated in time; least-squares alignment
+    motion          the unicycle motion model, sampled for M particles (noise per sqrt(s)); dead reckoning
     measurement     the range-bearing model h, its inverse and Jacobians
     ekf             one 2x2 EKF per landmark per particle (the compiled update, and the textbook one)
     weights         log importance weights, normalisation, effective sample size
     resampling      roulette (multinomial), systematic, stratified and residual resampling
     params          parameter sets: immutable, comparable, copied and serialised one way
 
-datasets        data in, data made (imports no evaluation code)
+datasets        data in, data made (imports no mapping or evaluation code)
     log, mrclam     the MR.CLAM reader and its tables; events: the filter's event stream
     laser           laser logs (CARMEN, Intel JSON, relations, THOR .mat)
     registry, fetch pinned sources, downloads and checks (`fastslam-edu data`)
     sim             a simulated landmark world and robot; a simulated laser world (known truth, for tests)
+    thor_geometry   THOR's LiDAR -> head -> body -> world geometry, the joint sample of each scan
     thor_sim        a simulated THOR sequence driven by a real joint log
 
 landmark        landmark SLAM
@@ -31,15 +32,18 @@ landmark        landmark SLAM
 
 grid            grid SLAM
     occupancy       log-odds occupancy grid, Bresenham and vectorised ray casting, map correlation
-    gridslam        particle-filter SLAM with a grid (the THOR write-up's algorithm and variants), scan matching
-    thor            THOR's LiDAR -> head -> body -> world geometry, floor filtering
+    gridslam        particle-filter SLAM with a grid (the THOR write-up's algorithm and variants)
+    motion          the grid filter's motion: the odometry increment, noise scaled to it
+    scan_matching   map correlation (the weight) and hill-climbing scan matching
+    thor            THOR's returns: range and floor filtering, the planar laser log
     thor_slam       grid SLAM on a THOR log: planar scans (floor filter on or off), maps and their scores
 
 evaluation      measuring results
-    metrics         landmark and trajectory errors, SE(2) alignment
+    metrics         landmark and trajectory errors, absolute and aligned
     relations       Kuemmerle et al. relation errors
     consistency     NEES: is the filter's reported uncertainty honest (the particle cloud's covariance)
-    noise_estimation  the sensor and odometry noise, measured against groundtruth
+    noise_estimation  the sensor (measurement) and odometry (motion) noise, measured against groundtruth
+                      (groundtruth: glitches and gaps; robust: the scaled MAD)
     audit           the MR.CLAM landmark table checked against the sightings
     association     scoring data association: map matched to the survey, accuracy, the oracle bound
     registration    the rigid motion that lays a map without names on the survey (a consensus, for the matching)

@@ -12,18 +12,9 @@ from scipy.special import logsumexp
 from fastslam_edu.grid.occupancy import (OccupancyGrid, bresenham, map_correlation, ray_cells_batch, scan_endpoints,
                                          update_maps)
 from grid_loop import run_grid_slam_loop  # benchmarks/grid_loop.py, the loop reference
-from fastslam_edu.grid.gridslam import (
-    GridSLAMParams,
-    ancestral_path,
-    correlation,
-    correlation_kernel,
-    endpoint_cells,
-    hit_field,
-    increment_noise_std,
-    run_grid_slam,
-    sample_motion,
-    scan_match,
-)
+from fastslam_edu.grid.gridslam import GridSLAMParams, ancestral_path, run_grid_slam
+from fastslam_edu.grid.motion import increment_noise_std, sample_motion
+from fastslam_edu.grid.scan_matching import correlation, correlation_kernel, endpoint_cells, hit_field, scan_match
 from fastslam_edu.evaluation.relations import reference_errors
 from fastslam_edu.datasets.sim import simulate_laser_world
 
