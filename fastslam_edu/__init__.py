@@ -16,6 +16,7 @@ datasets        data in, data made (imports no mapping or evaluation code)
     registry, fetch pinned sources, downloads and checks (`fastslam-edu data`)
     sim             a simulated landmark world and robot; a simulated laser world (known truth, for tests)
     thor_geometry   THOR's LiDAR -> head -> body -> world geometry, the joint sample of each scan
+    floor_plan      a building of walls and floor, and 3D rays cast in it (the simulated THOR's world)
     thor_sim        a simulated THOR sequence driven by a real joint log
 
 landmark        landmark SLAM

@@ -352,3 +352,12 @@ def test_bad_inputs(joints, tmp_path, monkeypatch):
     monkeypatch.setenv("FASTSLAM_EDU_DATA", str(tmp_path))
     with pytest.raises(FileNotFoundError, match="train_joint0.mat"):
         real_thor_joints()
+
+
+def test_the_simulator_hands_out_the_one_floor_plan():
+    """Chapter 18 imports the world from thor_sim: the same objects as datasets.floor_plan's, no copies."""
+    from fastslam_edu.datasets import floor_plan, thor_sim
+
+    for name in floor_plan.__all__:
+        assert getattr(thor_sim, name) is getattr(floor_plan, name), name
+        assert name in thor_sim.__all__, name

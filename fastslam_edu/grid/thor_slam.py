@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fastslam_edu.datasets.laser import LaserLog, ThorLidar
-from fastslam_edu.datasets.thor_sim import FloorPlan
+from fastslam_edu.datasets.floor_plan import FloorPlan
 from fastslam_edu.grid.gridslam import GridSLAMParams, GridSLAMResult, run_grid_slam
 from fastslam_edu.grid.occupancy import OccupancyGrid
 from fastslam_edu.datasets.thor_geometry import FLOOR_Z, MAX_RANGE
