@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.grid.gridslam import GridSLAMParams, GridSLAMResult, _beams, _prepare, ancestral_path, grid_for_path
+from fastslam_edu.grid.gridslam import (GridSLAMParams, GridSLAMResult, ancestral_path, grid_for_path, odometry_of_run,
+                                        scan_beams)
 from fastslam_edu.grid.motion import increment_noise_std
 from fastslam_edu.grid.scan_matching import correlation_kernel
 from fastslam_edu.grid.occupancy import OccupancyGrid, bresenham
@@ -112,7 +113,7 @@ def run_grid_slam_loop(log, params: GridSLAMParams, rng: np.random.Generator, *,
     """The same algorithm and random numbers as :func:`fastslam_edu.grid.gridslam.run_grid_slam`, in loops."""
     if params.resampler != "systematic" or params.match_iterations:
         raise ValueError("run_grid_slam_loop: only resampler='systematic' and match_iterations=0 are implemented")
-    u, x0, odo = _prepare(log, increments, x0)
+    u, x0, odo = odometry_of_run(log, increments, x0)
     n = len(log) if n_scans is None else min(int(n_scans), len(log))
     m = params.n_particles
     template = grid_for_path(odo[:n], params)
@@ -124,7 +125,7 @@ def run_grid_slam_loop(log, params: GridSLAMParams, rng: np.random.Generator, *,
 
     t_start = time.perf_counter()
     shared = [[0.0] * g.shape[1] for _ in range(g.shape[0])]
-    g.add_scan(shared, tuple(x0), *_beams(log, 0, params))
+    g.add_scan(shared, tuple(x0), *scan_beams(log, 0, params))
     maps = [[row[:] for row in shared] for _ in range(m)] if per_particle else None
     particles = [tuple(float(v) for v in x0) for _ in range(m)]
     logw = [-math.log(m)] * m
@@ -132,7 +133,7 @@ def run_grid_slam_loop(log, params: GridSLAMParams, rng: np.random.Generator, *,
     poses, n_eff, resampled, best_score = np.empty((n, 3)), np.full(n, float(m)), np.zeros(n, bool), np.zeros(n)
     poses[0] = x0
     for k in range(1, n):
-        r, a = (list(v) for v in _beams(log, k, params))
+        r, a = (list(v) for v in scan_beams(log, k, params))
         sigma = increment_noise_std(u[k], params)
         particles = [propagate(p, u[k], sigma, rng) for p in particles]  # 1. propagate
         scores = [g.score(maps[i] if per_particle else shared, particles[i], r, a, kernel) for i in range(m)]  # 2.
@@ -163,6 +164,6 @@ def run_grid_slam_loop(log, params: GridSLAMParams, rng: np.random.Generator, *,
         grid=OccupancyGrid(g.resolution, template.origin, g.shape, template.l_occ, template.l_free, template.l_max, lo),
         maps=np.array(maps, dtype=np.float32) if per_particle else None, particles=np.array(particles),
         log_weights=np.array(logw), n_eff=n_eff, resampled=resampled, best_score=best_score,
-        beams_used=np.array([len(_beams(log, k, params)[0]) for k in range(n)]), params=params,
+        beams_used=np.array([len(scan_beams(log, k, params)[0]) for k in range(n)]), params=params,
         filter_seconds=seconds,
     )

@@ -82,6 +82,8 @@ __all__ = [
     "MAP_MODES",
     "grid_for_path",
     "add_scans",
+    "odometry_of_run",
+    "scan_beams",
     "ancestral_path",
     "GridRun",
     "run_grid_slam",
@@ -382,7 +384,13 @@ def add_scans(maps: np.ndarray, grid: OccupancyGrid, poses, ranges, angles, para
 # --------------------------------------------------------------------------- the filter
 
 
-def _prepare(log: LaserLog, increments, x0):
+def odometry_of_run(log: LaserLog, increments, x0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The checked odometry a run starts from: ``(u (N, 3), x0 (3,), path (N, 3))``.
+
+    ``u_k`` the increment of scan ``k`` (row 0 unused; default
+    :func:`fastslam_edu.datasets.laser.odometry_increments`), ``x0`` the start pose (default
+    ``log.poses[0]``) and the odometry path ``x_k = x_{k−1} ⊕ u_k`` from it.
+    """
     if not isinstance(log, LaserLog):
         raise ValueError(f"grid SLAM needs a LaserLog, got {type(log).__name__}")
     n = len(log)
@@ -400,7 +408,8 @@ def _prepare(log: LaserLog, increments, x0):
     return u, x0, compose_increments(x0, u[1:])
 
 
-def _beams(log: LaserLog, k: int, params: GridSLAMParams):
+def scan_beams(log: LaserLog, k: int, params: GridSLAMParams) -> tuple[np.ndarray, np.ndarray]:
+    """``(ranges, angles)`` of scan ``k`` that the filter uses: ranges in ``[min_range, max_range]``."""
     return log.beams(k, min_range=params.min_range, max_range=params.max_range)
 
 
@@ -562,17 +571,17 @@ def run_grid_slam(
     """
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"run_grid_slam: rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    u, x0, odo = _prepare(log, increments, x0)
+    u, x0, odo = odometry_of_run(log, increments, x0)
     n = len(log) if n_scans is None else min(int(n_scans), len(log))
     t_start = time.perf_counter()
-    run = GridRun.start(params, grid_for_path(odo[:n], params), x0, _beams(log, 0, params), n, sensor_offset)
+    run = GridRun.start(params, grid_for_path(odo[:n], params), x0, scan_beams(log, 0, params), n, sensor_offset)
     steps = range(1, n)
     if progress:
         from tqdm.auto import tqdm
 
         steps = tqdm(steps, desc="grid SLAM", unit="scan", leave=False)
     for k in steps:
-        scan = _beams(log, k, params)
+        scan = scan_beams(log, k, params)
         w = run.weigh(k, u[k], scan, rng)
         run.update_maps(scan)
         run.resample_if_needed(k, w, rng)
