@@ -21,32 +21,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fastslam_edu.datasets import thor_geometry
 from fastslam_edu.datasets.laser import LaserLog, ThorLidar
 from fastslam_edu.datasets.thor_geometry import (  # noqa: F401 (the geometry, re-exported for the chapters)
     BODY_HEIGHT, FLOOR_Z, LIDAR_ABOVE_HEAD, LIDAR_HEIGHT, MAX_RANGE, MIN_RANGE, beam_directions_world,
     beam_points_lidar, body_to_world, homogeneous, joints_at, lidar_points_world, lidar_to_body, lidar_to_world,
     nearest_sample, rot_y, rot_z)
 
+#: The geometry's names (re-exported), then this module's own.
 __all__ = [
-    "BODY_HEIGHT",
-    "LIDAR_ABOVE_HEAD",
-    "LIDAR_HEIGHT",
-    "MIN_RANGE",
-    "MAX_RANGE",
-    "FLOOR_Z",
-    "rot_z",
-    "rot_y",
-    "homogeneous",
-    "lidar_to_body",
-    "body_to_world",
-    "lidar_to_world",
-    "beam_points_lidar",
-    "beam_directions_world",
-    "lidar_points_world",
+    *thor_geometry.__all__,
     "ReturnFilter",
     "filter_returns",
-    "joints_at",
-    "nearest_sample",
     "BAND_Z",
     "PLANAR_BEARING_STEP",
     "planar_laser_log",
