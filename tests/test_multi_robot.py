@@ -5,6 +5,7 @@ simulator's relative pose, the joint map against the single-robot ones, one robo
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pandas as pd
@@ -203,3 +204,74 @@ def test_no_robot_robot_sighting_goes_on_and_says_so():
     assert result.robot_sightings_used == 0 and np.all(result.observed == smooth(streams[1], _params()).observed
                                                        | smooth(streams[2], _params()).observed)
     assert len(result.notes) == 1 and "no robot-robot sighting between robots 1, 2" in result.notes[0]
+
+
+# --------------------------------------------------------------------------- the command line, on simulated folders
+
+
+@pytest.fixture(scope="module")
+def team_dir(tmp_path_factory):
+    data = simulate_dataset(8, n_robots=3, see_robots=True, duration=30.0)
+    return write_dataset(data, tmp_path_factory.mktemp("team") / "MRCLAM_Team")
+
+
+def _cli(folder, out, *extra):
+    from fastslam_edu.app.cli import main
+
+    return main(["run", "--data", str(folder), "--particles", "20", "--quiet", "--json", str(out), *extra])
+
+
+def test_cli_robots_smooth_writes_every_robot_and_the_shared_map(team_dir, tmp_path, capsys):
+    assert _cli(team_dir, tmp_path / "out.json", "--robots", "1,2,3", "--smooth") == 0
+    assert "robot2.path_rmse_m" in capsys.readouterr().out
+    sm = json.loads((tmp_path / "out.json").read_text())["smoother"]
+    assert sorted(sm["robots"]) == ["1", "2", "3"]
+    for figures in sm["robots"].values():
+        assert 0 <= figures["path_rmse_aligned_m"] <= figures["path_rmse_m"] < 0.2
+    assert sm["landmark_error_mean_m"] < 0.2 and sm["landmark_error_aligned_mean_m"] < 0.2
+    assert sm["robot_sightings_used"] > 0 and sm["robot_sightings_gated"] >= 0
+
+
+def test_cli_one_robot_in_robots_is_robot(team_dir, tmp_path):
+    assert _cli(team_dir, tmp_path / "a.json", "--robots", "2", "--smooth") == 0
+    assert _cli(team_dir, tmp_path / "b.json", "--robot", "2", "--smooth") == 0
+    a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
+    for d in (a, b, a["smoother"], b["smoother"]):
+        for k in [k for k in d if "seconds" in k]:
+            d.pop(k)
+    assert a == b
+
+
+@pytest.mark.parametrize("robots, code, message", [
+    ("1,7", 2, "not a MR.CLAM robot"), ("1,1", 2, "given more than once"), ("1,x", 2, "separated by commas")])
+def test_cli_bad_robot_lists(team_dir, tmp_path, capsys, robots, code, message):
+    with pytest.raises(SystemExit) as exit_:
+        _cli(team_dir, tmp_path / "out.json", "--robots", robots, "--smooth")
+    err = capsys.readouterr().err
+    assert exit_.value.code == code and err.count("\n") == 1 and message in err
+    assert not (tmp_path / "out.json").exists()
+
+
+def test_cli_bad_input_one_line_nothing_written(team_dir, tmp_path, capsys):
+    import shutil
+
+    broken = tmp_path / "broken"
+    shutil.copytree(team_dir, broken)
+    (broken / "Robot3_Measurement.dat").unlink()
+    out = tmp_path / "out.json"
+    for folder, extra, message in (
+            (broken, ("--robots", "1,3", "--smooth"), "Robot3_Measurement.dat"),
+            (team_dir, ("--robots", "1,2"), "add --smooth"),
+            (team_dir, ("--robots", "1,2", "--smooth", "--filter", "ekf"), "not available with several robots"),
+            (team_dir, ("--robot", "1", "--robots", "1,2", "--smooth"), "not both")):
+        assert _cli(folder, out, *extra) == 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+        assert not out.exists()
+
+
+def test_cli_without_robot_sightings_goes_on_and_says_so(tmp_path, capsys):
+    folder = write_dataset(simulate_dataset(9, n_robots=2, duration=20.0), tmp_path / "MRCLAM_Alone")
+    assert _cli(folder, tmp_path / "out.json", "--robots", "1,2", "--smooth") == 0
+    assert "no robot-robot sighting between robots 1, 2" in capsys.readouterr().err
+    assert json.loads((tmp_path / "out.json").read_text())["smoother"]["robot_sightings_used"] == 0

@@ -26,6 +26,20 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _robot_list(text: str) -> tuple:
+    """``--robots 1,2,3``: robot numbers in 1-5, none repeated."""
+    from fastslam_edu.landmark.multi_robot import check_robot_numbers
+
+    try:
+        numbers = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected robot numbers separated by commas, e.g. 1,2,3, got {text!r}") from None
+    try:
+        return check_robot_numbers(numbers)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _initial_pose(text: str):
     if text == "landmarks":
         return text
@@ -50,7 +64,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
     run = sub.add_parser("run", help="FastSLAM 1.0 (or EKF-SLAM) on one robot of a MR.CLAM dataset")
     run.add_argument("--data", required=True, type=Path, help="a MR.CLAM dataset folder (MRCLAM_DatasetN)")
-    run.add_argument("--robot", required=True, type=_positive_int, help="robot subject number (1-5)")
+    run.add_argument("--robot", type=_positive_int, help="robot subject number (1-5); or --robots")
+    run.add_argument("--robots", type=_robot_list, metavar="N,N,...",
+                     help="several robots of the dataset, e.g. 1,2,3,4,5: with --smooth, one least-squares problem "
+                          "over all their paths and one shared map, with their sightings of each other "
+                          "(fastslam_edu.landmark.multi_robot); one robot: the same as --robot")
     run.add_argument("--filter", choices=FILTERS, default="fastslam",
                      help="fastslam: FastSLAM 1.0 (default); ekf: EKF-SLAM, one Gaussian over pose and map, with the "
                           "same noise model and gate (fastslam_edu.landmark.ekf_slam; deterministic)")
@@ -300,6 +318,12 @@ def cmd_run(args) -> int:
 
     if not args.data.is_dir():
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
+    if (args.robot is None) == (args.robots is None):
+        raise ValueError("give the robot: --robot N, or --robots N,N,... (not both)")
+    if args.robots is not None and len(args.robots) == 1:
+        args.robot = args.robots[0]  # the same run as --robot
+    elif args.robots is not None:
+        return cmd_run_robots(args)
     if args.smoother_backend is not None and not args.smooth:
         raise ValueError(f"--smoother-backend {args.smoother_backend} chooses the solver of --smooth: give --smooth too")
     if args.smoother_backend == "gtsam":
@@ -359,6 +383,40 @@ def cmd_run(args) -> int:
         fig = run_figure(result, dataset.landmark_positions, log.groundtruth, errs,
                          title=f"{args.data.name} robot {args.robot}, M={args.particles}, seed {args.seed}")
         fig.savefig(args.plot, dpi=120)
+    return 0
+
+
+def cmd_run_robots(args) -> int:
+    """``fastslam-edu run --robots 1,2,3 --smooth``: FastSLAM on each robot, then one least-squares problem over all of
+    them (:func:`fastslam_edu.app.multi_robot.run_mrclam_robots`); per robot its path's errors, and the shared map's."""
+    from fastslam_edu.app.multi_robot import run_mrclam_robots
+    from fastslam_edu.landmark.fastslam import ProgressBar
+
+    given = [name for name, used in (("--filter ekf", args.filter != "fastslam"),
+                                     ("--correspondences unknown", args.correspondences != "known"),
+                                     ("--mode", args.mode != "slam"), ("--groundtruth", args.groundtruth is not None),
+                                     ("--plot", args.plot is not None),
+                                     ("--smoother-backend", getattr(args, "smoother_backend", None) not in (None, "scipy")))
+             if used]
+    if given:
+        raise ValueError(f"{', '.join(given)}: not available with several robots (--robots)")
+    if not args.smooth:
+        raise ValueError("--robots with several robots solves them together: add --smooth (or give one robot)")
+    defaults = FastSLAMParams()
+    params = defaults.replace(n_particles=defaults.n_particles if args.particles is None else args.particles,
+                              resampler=args.resampler or defaults.resampler, proposal=args.proposal)
+    _, summary, _ = run_mrclam_robots(args.data, args.robots, params, args.seed, rate=args.rate, x0=args.x0,
+                                      audit=not args.no_audit, hooks=() if args.quiet else (ProgressBar(),))
+    summary["filter"] = "fastslam"
+    for note in summary["notes"]:
+        print(f"note: {note}", file=sys.stderr)
+    sm = summary["smoother"]
+    rows = [(f"robot{r}.{k}", fig.get(k)) for r, fig in sm["robots"].items() for k in ("path_rmse_m", "path_rmse_aligned_m")]
+    rows += [(f"smoother.{k}", sm.get(k)) for k in ("landmark_error_mean_m", "landmark_error_aligned_mean_m",
+                                                  "robot_sightings_used", "robot_sightings_gated", "smoother_seconds")]
+    _print_rows(rows)
+    if args.json:
+        args.json.write_text(json.dumps(summary, indent=2))
     return 0
 
 
