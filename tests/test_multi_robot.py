@@ -67,6 +67,33 @@ def test_robot_sighting_jacobians_match_finite_differences():
         np.testing.assert_allclose(Jb, _numeric_jacobian(lambda x: e(xa, x), xb), atol=1e-6)
 
 
+def test_keyframe_offsets_carry_the_keyframe_to_the_sighting_time():
+    """x̂(t) = x̂_k ⊕ δ: the dead-reckoned pose at any time inside the log, from the keyframe at or before it."""
+    from fastslam_edu.landmark.multi_robot import keyframe_offsets
+    from fastslam_edu.landmark.smoother import dead_reckoning, keyframe_steps
+
+    data, logs, streams, _ = _team(2, n_robots=1, duration=30.0)
+    s = streams[1]
+    path, keys = dead_reckoning(s, s.x0), keyframe_steps(s)
+    t = np.random.default_rng(0).uniform(s.t[0], s.t[-1], 50)
+    k, delta = keyframe_offsets(s, path, keys, t)
+    assert np.all(s.t[keys[k]] <= t) and np.all(np.abs(delta[:, :2]).max(axis=1) < 0.5)  # keyframes ≤ 1 s apart
+    expected = np.stack([np.interp(t, s.t, path[:, i]) for i in range(3)], axis=1)
+    np.testing.assert_allclose(compose(path[keys[k]], delta), expected, atol=1e-9)
+
+
+def test_robot_sightings_are_tempered_per_robot_seen():
+    """β = min(1, Δt/τ) with Δt since the observer last saw the same robot (a robot seen is a landmark of its
+    observer); other observers and other robots do not count."""
+    from fastslam_edu.landmark.multi_robot import robot_sighting_weights
+
+    observer = np.array([1, 1, 1, 2, 1])
+    seen = np.array([2, 2, 3, 1, 2])
+    t = np.array([0.0, 1.0, 1.0, 1.5, 4.0])
+    np.testing.assert_allclose(robot_sighting_weights(observer, seen, t, 2.0), [1.0, 0.5, 1.0, 1.0, 1.0])
+    np.testing.assert_allclose(robot_sighting_weights(observer, seen, t, None), 1.0)
+
+
 def test_one_robot_is_the_single_robot_smoother():
     data, logs, streams, _ = _team(1, n_robots=1)
     for solver in (BEST_ESTIMATE, BEST_ESTIMATE.replace(tempering=True)):
