@@ -119,31 +119,38 @@ def test_between_factor_uses_the_se2_logarithm(monkeypatch):
         _package_cost(problem, moved, active), rel=1e-6)
 
 
-def test_odometry_factor_jacobians_match_finite_differences():
-    """The CustomFactor's Jacobians against central differences of its error under GTSAM's own retraction."""
+def test_odometry_chain_factor_matches_the_package_and_finite_differences():
+    """One CustomFactor over a chain of 4 odometry steps: its error is the package's whitened residuals, its
+    Jacobians central differences of that error under GTSAM's own retraction (x exp(δ))."""
     gtsam = pytest.importorskip("gtsam")
+    from fastslam_edu.landmark.smoother import odometry_residuals, whitening
+
     rng = np.random.default_rng(2)
-    for _ in range(5):
-        xa, xb, delta = rng.normal(size=3) * 2, rng.normal(size=3) * 2, rng.normal(size=3) * 0.3
-        factor = smoother_gtsam.odometry_factor(0, 1, delta, np.eye(3))
+    m = 4
+    x, delta = rng.normal(size=(m + 1, 3)) * 2, rng.normal(size=(m, 3)) * 0.3
+    L = rng.normal(size=(m, 3, 3)) * 0.1
+    W = whitening(L @ np.swapaxes(L, 1, 2) + 0.01 * np.eye(3))
+    factor = smoother_gtsam.odometry_chain_factor(3, delta, W)
+
+    def values_at(poses):
         values = gtsam.Values()
-        values.insert(0, gtsam.Pose2(*xa))
-        values.insert(1, gtsam.Pose2(*xb))
-        jacobian = factor.linearize(values).jacobian()[0]  # [A_a A_b], whitened by the identity
-        numeric = np.zeros((3, 6))
-        for col in range(6):
-            d = np.zeros(6)
-            d[col] = 1e-6
-            errors = []
-            for sign in (1, -1):
-                moved = gtsam.Values()
-                moved.insert(0, gtsam.Pose2(*xa).retract(sign * d[:3]))
-                moved.insert(1, gtsam.Pose2(*xb).retract(sign * d[3:]))
-                errors.append(factor.unwhitenedError(moved))
-            e = errors[0] - errors[1]
-            e[2] = np.angle(np.exp(1j * e[2]))
-            numeric[:, col] = e / 2e-6
-        np.testing.assert_allclose(jacobian, numeric, atol=1e-6)
+        for i, p in enumerate(poses):
+            values.insert(smoother_gtsam.pose_key(3 + i), p)
+        return values
+
+    poses = [gtsam.Pose2(*p) for p in x]
+    expected = np.einsum("kij,kj->ki", W, odometry_residuals(x[:-1], x[1:], delta)[0]).ravel()
+    np.testing.assert_allclose(factor.unwhitenedError(values_at(poses)), expected, atol=1e-12)
+    jacobian = factor.linearize(values_at(poses)).jacobian()[0]  # [A_0 … A_m], unit noise
+    numeric = np.zeros((3 * m, 3 * (m + 1)))
+    for col in range(3 * (m + 1)):
+        d = np.zeros(3)
+        d[col % 3] = 1e-6
+        i = col // 3
+        plus, minus = list(poses), list(poses)
+        plus[i], minus[i] = poses[i].retract(d), poses[i].retract(-d)
+        numeric[:, col] = (factor.unwhitenedError(values_at(plus)) - factor.unwhitenedError(values_at(minus))) / 2e-6
+    np.testing.assert_allclose(jacobian, numeric, atol=1e-5)
 
 
 def test_without_gtsam_the_backend_is_refused_in_one_line(monkeypatch):
