@@ -23,7 +23,7 @@ CHROMIUM ?= chromium
 $(BIN)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test,book,graph]"
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test,book,graph,sweep]"
 	$(BIN)/python -m ipykernel install --sys-prefix --name python3 >/dev/null
 	touch $@
 
