@@ -17,7 +17,9 @@ become factors of GTSAM (Dellaert & Kaess, *Factor Graphs for Robot Perception*,
 * **prior on** :math:`x_0`, ``PriorFactorPose2``: :math:`e_g = \\operatorname{Log}(\\bar x_0^{-1} x_0)`, in the frame
   of :math:`\\bar x_0`; the package's :math:`e = x_0 - \\bar x_0` (heading wrapped) is in the world frame. To first order
   :math:`e_g = T(\\bar\\theta_0)\\, e` with :math:`T(\\theta) = \\mathrm{blockdiag}(R(\\theta)^\\top, 1)`, so the factor gets
-  the covariance :math:`T P_0 T^\\top` (:func:`rotated_covariance`; :math:`P_0` is diagonal with ``x0_std``).
+  the covariance :math:`T P_0 T^\\top` (:func:`rotated_covariance`; :math:`P_0` is diagonal with ``x0_std``). The
+  second-order difference (the logarithm's, as for the odometry below) is of the order of the prior's heading
+  residual: negligible with the default ``PRIOR_STD``, which pins :math:`x_0`; not measured with a loose ``x0_std``.
 * **odometry**: GTSAM's own ``BetweenFactorPose2`` has the error
   :math:`e_g = \\operatorname{Log}(\\Delta_k^{-1}(x_{k-1}^{-1} x_k))` — the SE(2) logarithm, in the frame of
   :math:`\\Delta_k`'s end — where the package has the componentwise
