@@ -462,7 +462,7 @@ def _huber(r_m, c):
     return w, np.where(s <= c, 0.5 * s * s, c * s - 0.5 * c * c)
 
 
-def _levenberg_marquardt(problem: _Problem, v, active, *, huber, max_iterations, tol):
+def levenberg_marquardt(problem: _Problem, v, active, *, huber, max_iterations, tol):
     """Minimise the (robust) cost over ``v``; returns ``(v, iterations, cost)``."""
 
     def cost_of(v):
@@ -706,7 +706,7 @@ def smooth(
 def _backend(backend: str, solver: SolverSettings):
     """``(minimise, laplace)`` of ``backend``: the package's, or GTSAM's (:mod:`.smoother_gtsam`)."""
     if backend == "scipy":
-        return _levenberg_marquardt, _laplace
+        return levenberg_marquardt, _laplace
     if backend != "gtsam":
         raise ValueError(f"smooth: backend must be 'scipy' or 'gtsam', got {backend!r}")
     if solver.calibrate:
@@ -775,12 +775,12 @@ def starting_point(problem, path, keys, seen, initial: FastSLAMResult | None) ->
 
 def solve_with_gate(problem, v, gate: float | None, solver: SolverSettings, minimise=None):
     """Round 1: Huber at the gate's radius (unless ``solver.huber`` is False); then the gate itself, until the
-    rejected set settles. Each round is minimised by ``minimise`` (default ``_levenberg_marquardt``; or
+    rejected set settles. Each round is minimised by ``minimise`` (default ``levenberg_marquardt``; or
     :func:`fastslam_edu.landmark.smoother_gtsam.levenberg_marquardt`, the same signature).
 
     Returns ``(v, active, iterations, rounds, cost)``.
     """
-    minimise = _levenberg_marquardt if minimise is None else minimise
+    minimise = levenberg_marquardt if minimise is None else minimise
     active = np.ones(len(problem.z), dtype=bool)
     problem.anchor = problem.split(v)[1].copy()
     huber = None if gate is None or not solver.huber else np.sqrt(gate)

@@ -218,7 +218,7 @@ def _pose_array(p) -> np.ndarray:
 
 def levenberg_marquardt(problem, v, active, *, huber, max_iterations, tol):
     """One round of the smoother solved by ``gtsam.LevenbergMarquardtOptimizer`` from ``v``: the same signature and
-    returns as ``smoother._levenberg_marquardt``, ``(v, iterations, cost)``; ``cost`` is GTSAM's
+    returns as ``smoother.levenberg_marquardt``, ``(v, iterations, cost)``; ``cost`` is GTSAM's
     :math:`\\tfrac12 \\sum \\|W e\\|^2` (or :math:`\\sum \\rho` with ``huber``). It stops when the cost's relative
     decrease is below ``tol`` or after ``max_iterations``."""
     gtsam = require_gtsam()
