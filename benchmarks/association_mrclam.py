@@ -32,7 +32,12 @@ joint compatibility (the filter and the online ceiling; the joint rule takes 1.0
 seeds 0–39, the default's mean of medians was 0.51 against the greedy pairing's 0.48, a difference whose 95 %
 bootstrap interval (each rule's seeds drawn again) stays above zero; at 20 seeds it did not.
 
-Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs 2] [--greedy] [--out FILE]
+The runs (robots × seeds) go through :func:`fastslam_edu.app.sweep.run_sweep`: ``--jobs N`` processes on this
+machine (joblib, default all cores; ``--jobs 1`` serially), or ``--scheduler tcp://HOST:8786`` on a dask.distributed
+cluster (README, "Sweeps on a cluster"); every run takes its seed from its job, so the numbers are the same whichever
+runs them (only the times differ: ``filter_seconds`` and the JSON's ``sweep.wall_seconds``).
+
+Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs N | --scheduler ADDRESS] [--greedy] [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data; about 30 s on 2 cores for 3 seeds)
 """
 
@@ -42,7 +47,7 @@ import argparse
 import json
 import statistics
 import sys
-from concurrent.futures import ProcessPoolExecutor
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -50,6 +55,7 @@ from machine import machine_info, machine_line  # noqa: E402
 
 from fastslam_edu.app.experiment import (anonymous_stream, association_ceiling, run_mrclam,  # noqa: E402
                                          run_mrclam_unknown)
+from fastslam_edu.app.sweep import SweepError, add_sweep_options, run_sweep  # noqa: E402
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.evaluation.association import OnlineCeiling  # noqa: E402
 from fastslam_edu.evaluation.metrics import mean_of_medians  # noqa: E402
@@ -70,8 +76,8 @@ def bounds(dataset: int, robot: int, seed: int, params: AssociationParams) -> tu
     return association_ceiling(known, stream, true_index, params.filter), probe.accuracy
 
 
-def _run(job) -> dict:
-    dataset, robot, seed, params = job
+def _run(dataset: int, robot: int, seed: int, params: AssociationParams) -> dict:
+    """One job of the sweep: FastSLAM without barcodes on one robot with one seed, and its bounds."""
     _, summary, _ = run_mrclam_unknown(mrclam_path(dataset), robot, params, seed=seed)
     oracle = summary["association_accuracy_oracle"]
     ceiling, online = bounds(dataset, robot, seed, params)
@@ -87,7 +93,7 @@ def _run(job) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--jobs", type=int, default=2)
+    add_sweep_options(ap)
     ap.add_argument("--greedy", action="store_true",
                     help="decide each instant by the greedy pairing (AssociationParams.joint_compatibility=False), "
                          "filter and online ceiling")
@@ -98,8 +104,13 @@ def main(argv=None) -> int:
     params = AssociationParams(joint_compatibility=not args.greedy)
     name = "association_mrclam_greedy.json" if args.greedy else "association_mrclam.json"
     args.out = args.out or Path(__file__).parent / "results" / name
-    with ProcessPoolExecutor(args.jobs) as pool:
-        runs = list(pool.map(_run, [(d, r, s, params) for d, r in robots for s in range(args.seeds)]))
+    start = time.perf_counter()
+    try:
+        runs = run_sweep(_run, [(d, r, s, params) for d, r in robots for s in range(args.seeds)],
+                         n_jobs=args.jobs, scheduler=args.scheduler)
+    except SweepError as error:
+        sys.exit(f"{ap.prog}: error: {error}")
+    sweep = {"jobs": args.jobs, "scheduler": args.scheduler, "wall_seconds": time.perf_counter() - start}
     keys = ("oracle", "ceiling", "online", "accuracy", "ratio_to_oracle", "not_in_map", "landmarks_spurious",
             "landmarks_in_map", "landmark_error_aligned_mean_m", "path_rmse_aligned_m")
     table = []
@@ -136,8 +147,10 @@ def main(argv=None) -> int:
     mean, low, high = mean_of_medians(per_robot)
     print(f"mean over the {len(robots)} robots of the median ratio to the oracle: {mean:.3f} "
           f"(95 % bootstrap interval over the seeds {low:.3f}-{high:.3f})")
+    where = f"dask scheduler {args.scheduler}" if args.scheduler else f"{args.jobs or 'all'} local process(es), joblib"
+    print(f"sweep: {len(runs)} runs in {sweep['wall_seconds']:.1f} s wall time on {where}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": info, "params": params.to_dict(), "seeds": args.seeds,
+    args.out.write_text(json.dumps({"machine": info, "sweep": sweep, "params": params.to_dict(), "seeds": args.seeds,
                                     "targets": TARGETS, "table": table, "runs": runs,
                                     "mean_ratio_to_oracle": {"mean": mean, "low": low, "high": high}}, indent=2))
     print(f"wrote {args.out}")

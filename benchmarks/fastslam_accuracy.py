@@ -10,12 +10,13 @@ sightings of the surveyed landmarks (:mod:`fastslam_edu.landmark.initial_pose`, 
 scored by their maps — the aligned landmark error does not depend on the start. Prints a table and writes JSON. ``--proposal
 fastslam2`` runs FastSLAM 2.0's proposal instead of 1.0's (``FastSLAMParams.proposal``).
 
-This is an accuracy benchmark, not a speed one: runs go to ``--jobs``
-processes (default 2), so the filter times it records are not comparable
-with ``fastslam_mrclam.py``'s.
+This is an accuracy benchmark, not a speed one: the runs (robots × seeds) go through
+:func:`fastslam_edu.app.sweep.run_sweep` — ``--jobs N`` processes (joblib, default all cores; 1: serially) or
+``--scheduler ADDRESS``, a dask.distributed cluster — so the filter times it records are not comparable with
+``fastslam_mrclam.py``'s; every other number is the same whichever runs them (each run takes its seed from its job).
 
 Usage: python benchmarks/fastslam_accuracy.py [--seeds 10] [--particles 100] [--proposal motion|fastslam2]
-       [--odometry-scale KV KW] [--jobs 2] [--out FILE]
+       [--odometry-scale KV KW] [--jobs N | --scheduler ADDRESS] [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data; about 30 s on 2 cores for 10 seeds)
 """
 
@@ -25,7 +26,6 @@ import argparse
 import json
 import statistics
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from functools import lru_cache
 from pathlib import Path
 
@@ -37,6 +37,7 @@ from machine import machine_info  # noqa: E402
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.datasets.events import event_stream  # noqa: E402
 from fastslam_edu.app.experiment import load_mrclam, summarize  # noqa: E402
+from fastslam_edu.app.sweep import SweepError, add_sweep_options, run_sweep  # noqa: E402
 from fastslam_edu.landmark.fastslam import PROPOSALS, FastSLAMParams, run_fastslam  # noqa: E402
 from fastslam_edu.landmark.initial_pose import initial_pose_from_landmarks  # noqa: E402
 
@@ -55,8 +56,8 @@ def _load(dataset: int, robot: int):
     return data, log, event_stream(log, data.landmark_subjects, rate="full", x0=x0)
 
 
-def _run(job) -> dict:
-    dataset, robot, seed, params = job
+def _run(dataset: int, robot: int, seed: int, params: FastSLAMParams) -> dict:
+    """One job of the sweep: FastSLAM on one robot with one seed, scored against the targets."""
     data, log, stream = _load(dataset, robot)
     result = run_fastslam(stream, params, np.random.default_rng(seed))
     summary = summarize(result, data, log)
@@ -71,7 +72,7 @@ def main(argv=None) -> int:
     ap.add_argument("--proposal", choices=PROPOSALS, default="motion")
     ap.add_argument("--odometry-scale", type=float, nargs=2, metavar=("KV", "KW"), default=(1.0, 1.0),
                     help="FastSLAMParams.odometry_scale: the commands are multiplied by (k_v, k_omega)")
-    ap.add_argument("--jobs", type=int, default=2)
+    add_sweep_options(ap)
     ap.add_argument("--out", type=Path, help="default: results/fastslam_accuracy[_fastslam2].json")
     args = ap.parse_args(argv)
     if args.out is None:
@@ -80,8 +81,10 @@ def main(argv=None) -> int:
     params = FastSLAMParams(n_particles=args.particles, proposal=args.proposal, odometry_scale=tuple(args.odometry_scale))
     robots = ROBOTS + EXTRA + NO_GROUNDTRUTH
     jobs = [(d, r, s, params) for d, r in robots for s in range(args.seeds)]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        runs = list(pool.map(_run, jobs, chunksize=args.seeds))
+    try:
+        runs = run_sweep(_run, jobs, n_jobs=args.jobs, scheduler=args.scheduler)
+    except SweepError as error:
+        sys.exit(f"{ap.prog}: error: {error}")
     table = []
     for d, r in robots:
         mine = [x for x in runs if (x["dataset"], x["robot"]) == (d, r)]

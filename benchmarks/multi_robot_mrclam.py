@@ -14,7 +14,11 @@ with a loose prior in the joint problem (``LANDMARK_START_STD``); the single-rob
 ``smoother_mrclam.py`` does. Target (issue 31): joint, every robot with groundtruth, path RMSE ≤ 0.30 m and landmark
 error ≤ 0.30 m. Nothing here is tuned: the model is ``FastSLAMParams()``'s.
 
-Usage: python benchmarks/multi_robot_mrclam.py [--seeds 3] [--jobs 2] [--out FILE]
+The (dataset, seed) jobs go through :func:`fastslam_edu.app.sweep.run_sweep`: ``--jobs N`` processes (joblib,
+default all cores; 1: serially) or ``--scheduler ADDRESS``, a dask.distributed cluster (README, "Sweeps on a
+cluster"); the numbers are the same whichever runs them, the times are not.
+
+Usage: python benchmarks/multi_robot_mrclam.py [--seeds 3] [--jobs N | --scheduler ADDRESS] [--out FILE]
 (data from $FASTSLAM_EDU_DATA; about 10 min on 2 cores, most of it the joint solves)
 """
 
@@ -25,7 +29,6 @@ import json
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +38,7 @@ from machine import machine_info  # noqa: E402
 
 from fastslam_edu.app.experiment import summarize_smoother  # noqa: E402
 from fastslam_edu.app.multi_robot import LANDMARK_START_STD, run_mrclam_robots  # noqa: E402
+from fastslam_edu.app.sweep import SweepError, add_sweep_options, run_sweep  # noqa: E402
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.landmark.fastslam import FastSLAMParams  # noqa: E402
 from fastslam_edu.landmark.smoother import BEST_ESTIMATE, smooth  # noqa: E402
@@ -45,9 +49,8 @@ FIGURES = ("path_rmse_m", "path_rmse_aligned_m", "landmark_error_mean_m", "landm
 TARGET_M = 0.30
 
 
-def _job(job) -> dict:
+def _job(dataset: int, seed: int) -> dict:
     """One dataset, one seed: the five single-robot solutions and the joint one."""
-    dataset, seed = job
     path = mrclam_path(dataset)
     has_gt = {r: any((path / name).exists() for name in (f"Robot{r}_Groundtruth.dat",
                                                          f"groundtruth_1hz/Robot{r}_Groundtruth_1hz.csv",
@@ -84,14 +87,16 @@ def _fmt(v):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--jobs", type=int, default=2)
+    add_sweep_options(ap)
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "multi_robot_mrclam.json")
     args = ap.parse_args(argv)
-    if args.seeds < 1 or args.jobs < 1:
-        ap.error("--seeds and --jobs must be >= 1")
+    if args.seeds < 1:
+        ap.error(f"--seeds must be >= 1 (got {args.seeds})")
     jobs = [(d, s) for d in DATASETS for s in range(args.seeds)]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        runs = list(pool.map(_job, jobs))
+    try:
+        runs = run_sweep(_job, jobs, n_jobs=args.jobs, scheduler=args.scheduler)
+    except SweepError as error:
+        sys.exit(f"{ap.prog}: error: {error}")
     table = []
     for d in DATASETS:
         mine = [x for x in runs if x["dataset"] == d]

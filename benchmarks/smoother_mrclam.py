@@ -21,7 +21,12 @@ For every solution also the rotation [°] of the rigid motion that best maps its
 The smoother uses every sighting at once; the filter must decide online and keeps M = 100 samples of
 the path. The gap between the two is what FastSLAM 1.0 loses, not what the data lack.
 
-Usage: python benchmarks/smoother_mrclam.py [--seeds 5] [--jobs 2] [--out FILE]
+The filter runs (robots × seeds) and the smoothers (one job per robot) go through
+:func:`fastslam_edu.app.sweep.run_sweep`: ``--jobs N`` processes (joblib, default all cores; 1: serially) or
+``--scheduler ADDRESS``, a dask.distributed cluster whose workers have ``benchmarks/`` on their ``PYTHONPATH``
+(README, "Sweeps on a cluster"); the numbers are the same whichever runs them, the times are not.
+
+Usage: python benchmarks/smoother_mrclam.py [--seeds 5] [--jobs N | --scheduler ADDRESS] [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data; about 10 min on one core, most of it the starts from dead reckoning)
 """
 
@@ -31,7 +36,6 @@ import argparse
 import json
 import statistics
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +45,7 @@ from fastslam_accuracy import EXTRA, NO_GROUNDTRUTH, ROBOTS, TARGETS, _load, _ru
 from machine import machine_info  # noqa: E402
 
 from fastslam_edu.app.experiment import summarize_smoother  # noqa: E402
+from fastslam_edu.app.sweep import SweepError, add_sweep_options, run_sweep  # noqa: E402
 from fastslam_edu.evaluation.metrics import align_se2  # noqa: E402
 from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam  # noqa: E402
 from fastslam_edu.landmark.smoother import BEST_ESTIMATE, ODOMETRY_CALIBRATION, SolverSettings, smooth  # noqa: E402
@@ -69,8 +74,8 @@ def _figures(result, data, log) -> dict:
     return out
 
 
-def _smoother(job) -> dict:
-    dataset, robot, seeds = job
+def _smoother(dataset: int, robot: int, seeds: int) -> dict:
+    """One job of the sweep: the smoother and its variants on one robot, from the filter's runs with seeds 0 … N-1."""
     data, log, stream = _load(dataset, robot)
     params = FastSLAMParams()
     filters = [run_fastslam(stream, params, np.random.default_rng(seed)) for seed in range(seeds)]
@@ -130,15 +135,18 @@ def _print(table, args) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--jobs", type=int, default=2)
+    add_sweep_options(ap)
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "smoother_mrclam.json")
     args = ap.parse_args(argv)
-    if args.seeds < 1 or args.jobs < 1:
-        ap.error("--seeds and --jobs must be >= 1")
+    if args.seeds < 1:
+        ap.error(f"--seeds must be >= 1 (got {args.seeds})")
     robots = ROBOTS + EXTRA + NO_GROUNDTRUTH
-    with ProcessPoolExecutor(args.jobs) as pool:
-        filters = list(pool.map(_run, [(d, r, s, FastSLAMParams()) for d, r in robots for s in range(args.seeds)]))
-        smoothers = list(pool.map(_smoother, [(d, r, args.seeds) for d, r in robots]))
+    sweep = {"n_jobs": args.jobs, "scheduler": args.scheduler}
+    try:
+        filters = run_sweep(_run, [(d, r, s, FastSLAMParams()) for d, r in robots for s in range(args.seeds)], **sweep)
+        smoothers = run_sweep(_smoother, [(d, r, args.seeds) for d, r in robots], **sweep)
+    except SweepError as error:
+        sys.exit(f"{ap.prog}: error: {error}")
     table = []
     for (d, r), sm in zip(robots, smoothers):
         runs = [x for x in filters if (x["dataset"], x["robot"]) == (d, r)]
