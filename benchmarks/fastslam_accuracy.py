@@ -125,4 +125,8 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # run as the module fastslam_accuracy, not as __main__: a sweep's worker process then finds _run and its cached
+    # _load by name (cloudpickle would send _run by value but cannot send the lru_cache of __main__'s _load)
+    import fastslam_accuracy
+
+    sys.exit(fastslam_accuracy.main())
