@@ -856,6 +856,79 @@ def test_compiled_run_equals_the_python_loop(resampler, threshold, mode, noise_o
     np.testing.assert_array_equal(compiled.particles.logw, looped.particles.logw)
 
 
+class _Chunks(fs.Hook):
+    """A hook served between compiled chunks of ``chunk_steps`` steps: it notes each chunk ``s..e`` and the mean
+    pose the run has recorded at its end (what a progress bar or a plot of the run could read)."""
+
+    def __init__(self, chunk_steps):
+        self.chunk_steps, self.spans, self.ends, self.closed = chunk_steps, [], [], False
+
+    def after_step(self, run, s, e):
+        self.spans.append((s, e))
+        self.ends.append(run.pose_mean[e].copy())
+
+    def close(self, run):
+        self.closed = True
+
+
+@pytest.mark.parametrize("chunk_steps, proposal", [(1, "motion"), (7, "motion"), (50, "fastslam2"), (10**6, "motion")])
+def test_a_run_in_chunks_equals_the_run_in_one_call(chunk_steps, proposal):
+    """Hooks with chunk_steps (the progress bar, Monitor) keep the run compiled: it returns to Python between
+    chunks of whole segments, with bit-identical numbers (the random stream continues across the calls); the
+    chunks cover every step once, in order, and what the hook reads at a chunk's end is the final record."""
+    data, log, stream = simulate(7, duration=30.0)
+    params = FastSLAMParams(n_particles=40, motion_noise=SIM.odometry_noise, resample_threshold=0.8, proposal=proposal)
+    hook = _Chunks(chunk_steps)
+    run = fs.start_run(stream, params, 0)
+    assert run.compiled((hook,)) and not run.compiled((fs.Hook(),))
+    whole = run_fastslam(stream, params, 5)
+    chunked = run_fastslam(stream, params, 5, hooks=[hook])
+    starts, ends = np.array(hook.spans).T
+    assert starts[0] == 0 and ends[-1] == len(stream) - 1 and (starts[1:] == ends[:-1] + 1).all()
+    assert len(hook.spans) > (1 if chunk_steps < len(stream) else 0) and hook.closed
+    if chunk_steps > 1:
+        assert max(ends - starts + 1) > 1
+    np.testing.assert_array_equal(np.array(hook.ends), chunked.pose_mean[ends])
+    assert chunked.n_resamples == whole.n_resamples > 0
+    for name in ("pose_mean", "pose_best", "ess", "ess_t"):
+        np.testing.assert_array_equal(getattr(chunked, name), getattr(whole, name))
+    np.testing.assert_array_equal(chunked.particles.mu, whole.particles.mu)
+    np.testing.assert_array_equal(chunked.particles.logw, whole.particles.logw)
+
+
+def test_segment_chunks_cover_the_segments_in_order():
+    """segment_chunks: whole segments, at most max_steps steps per chunk unless one segment is longer."""
+    segments = np.array([[0, 2], [3, 3], [4, 9], [10, 11], [12, 30], [31, 31]])
+    chunks = list(fs.segment_chunks(segments, 5))
+    assert chunks == [(0, 2), (2, 3), (3, 4), (4, 5), (5, 6)]
+    assert list(fs.segment_chunks(segments, 100)) == [(0, 6)]
+    assert list(fs.segment_chunks(segments[:0], 5)) == []
+
+
+def test_run_timer_keeps_compilation_apart():
+    """RunTimer: a kernel compiled inside the block counts in compile_seconds, not in filter_seconds; a block
+    that compiles nothing has compile_seconds 0. (A new function each time: nothing in numba's cache.)"""
+    import numba
+
+    from fastslam_edu.core.timing import RunTimer
+
+    def total(x):
+        s = 0.0
+        for v in x:
+            s += v
+        return s
+
+    kernel = numba.njit(total)
+    with RunTimer() as timer:
+        assert kernel(np.arange(4.0)) == 6.0
+    if hasattr(kernel, "py_func"):  # compiled (not under NUMBA_DISABLE_JIT=1)
+        assert 0 < timer.compile_seconds <= timer.total_seconds
+        assert timer.filter_seconds == pytest.approx(timer.total_seconds - timer.compile_seconds)
+    with RunTimer() as again:
+        kernel(np.arange(4.0))
+    assert again.compile_seconds == 0.0 and again.filter_seconds == again.total_seconds
+
+
 def test_a_hook_sees_every_resampling_decision_and_the_parents_drawn():
     """Hook.after_resampling: called once per measurement step, with the parents drawn (None when N_eff was high
     enough) and the set before step 3; the particles after it are exactly the parents' copies. A hook that keeps

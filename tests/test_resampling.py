@@ -355,3 +355,16 @@ def test_sum_just_beyond_the_tolerance_is_refused_and_within_it_renormalised():
 def test_negative_positions_never_select_a_leading_zero_weight_particle():
     """Positions below 0 (round-off) are clipped to 0: particle 0 of weight 0 owns an empty interval."""
     np.testing.assert_array_equal(rs.inverse_cdf([-0.1, -1e-17, 0.0], [0.0, 0.5, 0.5]), [1, 1, 1])
+
+
+@pytest.mark.parametrize("seed, m", [(0, 1), (1, 7), (2, 100), (3, 1000)])
+def test_roulette_indices_counted_equal_the_sorted_positions(seed, m):
+    """roulette_indices (the compiled run's roulette: offspring counted, no sort) draws the same indices as
+    roulette (sorted positions, then the inverse CDF) from the same random stream, weights with zeros included."""
+    w = np.random.default_rng(seed).exponential(size=m) * (np.arange(m) % 3 != 1)
+    if w.sum() == 0:
+        w[0] = 1.0
+    w /= w.sum()
+    counted = rs.roulette_indices(w, np.random.default_rng(seed + 10))
+    np.testing.assert_array_equal(counted, rs.roulette(w, np.random.default_rng(seed + 10)))
+    assert (np.diff(counted) >= 0).all() and (w[counted] > 0).all()

@@ -100,7 +100,7 @@ def summarize(result: FastSLAMResult, dataset: Dataset, log: RobotLog) -> dict:
     """The figures of a run against groundtruth (see the module docstring)."""
     counts = {"steps": int(len(result.t)), "measurements_used": result.measurements_used,
               "measurements_rejected": result.measurements_rejected, "resamples": result.n_resamples,
-              "filter_seconds": round(result.filter_seconds, 4)}
+              "filter_seconds": round(result.filter_seconds, 4), "compile_seconds": round(result.compile_seconds, 4)}
     return _scored(counts, result, result.pose_mean, result.landmarks_mean, dataset, log)
 
 
@@ -338,7 +338,8 @@ def _unknown_counts(result) -> dict:
     if isinstance(result, EKFSLAMResult):  # one hypothesis: nothing provisional, no resampling
         return {"landmarks_created": int(len(result.landmarks)), "filter_seconds": round(result.filter_seconds, 4)}
     return {"landmarks_provisional": result.n_provisional, "landmarks_created": result.landmarks_created,
-            "resamples": result.n_resamples, "filter_seconds": round(result.filter_seconds, 4)}
+            "resamples": result.n_resamples, "filter_seconds": round(result.filter_seconds, 4),
+            "compile_seconds": round(result.compile_seconds, 4)}
 
 
 def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLog) -> dict:

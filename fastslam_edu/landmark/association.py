@@ -77,7 +77,6 @@ of landmarks seen before then move the pose by the proposal
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -87,9 +86,10 @@ from numba import njit
 from fastslam_edu.core.angles import wrap_one
 from fastslam_edu.core.ekf import LOG_2PI, ekf_initialise, ekf_innovation, ekf_update, expected_measurement
 from fastslam_edu.core.params import Params
+from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.fastslam import (RESAMPLER_CODES, FastSLAMParams, _segments, stream_commands)
-from fastslam_edu.landmark.fastslam_step import (Log, Settings, motion_prediction_of, normalise_weights,
+from fastslam_edu.landmark.fastslam_step import (Log, Settings, copy_row, motion_prediction_of, normalise_weights,
                                                  pose_covariance, resampling_indices, sample_segment,
                                                  standard_normals, weighted_mean_pose)
 from fastslam_edu.landmark.proposal import improved_pose_into
@@ -523,7 +523,8 @@ def best_joint_hypothesis(info, ll, p0, Pc, slot):
     total = np.zeros(14)
     best = -math.inf
     while True:
-        ok, score, n_assigned = True, 0.0, 0
+        # (np.int64(0), not 0: a literal 0 would make numba compile joint_loglik a second time, for the constant)
+        ok, score, n_assigned = True, 0.0, np.int64(0)
         used[:] = False
         total[:] = 0.0
         for i in range(n):
@@ -535,13 +536,15 @@ def best_joint_hypothesis(info, ll, p0, Pc, slot):
                 break
             else:
                 used[k] = True
-                total += info[i, k]
+                for c in range(total.shape[0]):  # (number by number: see copy_row)
+                    total[c] += info[i, k, c]
                 n_assigned += 1
         if ok:
             score += joint_loglik(total, n_assigned, Pc)
             if score > best:
                 best = score
-                slot[:] = choice
+                for c in range(n):
+                    slot[c] = choice[c]
         i = 0  # the next hypothesis: turn the odometer
         while i < n:
             k = choice[i] + 1
@@ -620,8 +623,10 @@ def remove_landmark(P, m, k):
     """Remove landmark ``k`` of particle ``m``: the last landmark takes its slot."""
     last = P.n[m] - 1
     if k != last:
-        P.mu[m, k] = P.mu[m, last]
-        P.sigma[m, k] = P.sigma[m, last]
+        for a in range(2):  # (number by number: an array assignment compiles numba's shape check, see copy_row)
+            P.mu[m, k, a] = P.mu[m, last, a]
+            for b in range(2):
+                P.sigma[m, k, a, b] = P.sigma[m, last, a, b]
         P.ident[m, k] = P.ident[m, last]
         P.seen[m, k] = P.seen[m, last]
         P.missed[m, k] = P.missed[m, last]
@@ -659,7 +664,7 @@ def negative_evidence(P, m, taken, rules):
     """Count a miss for every landmark of particle ``m`` in view but not taken at this instant; remove the
     provisional ones whose existence log odds (:func:`existence_log_odds`) fall below zero: more likely clutter than
     real. A confirmed landmark whose log odds fall below zero is retired by :func:`retire_landmarks`."""
-    k = 0
+    k = np.int64(0)  # (not 0: see retire_landmarks)
     while k < P.n[m]:
         if not taken[k] and in_view(P.poses[m], P.mu[m, k], rules):
             P.missed[m, k] += 1
@@ -698,7 +703,7 @@ def retire_landmarks(P, m, rules, renames, q):
     hand-over is written to ``renames`` (C, 4) as ``(q, m, the heir's old identity, the identity it takes)``;
     ``renames[0, 0]`` counts the rows, from row 1 (:func:`best_history` reads them).
     """
-    k = 0
+    k = np.int64(0)  # (not 0: a literal would make numba compile heir_of and remove_landmark twice)
     while k < P.n[m]:
         if P.log_odds[m, k] >= 0.0:
             k += 1
@@ -787,18 +792,29 @@ def apply_associations(P, m, instant, chosen, rules, next_ident, out):
 @njit(cache=True)
 def select_maps(P, idx):
     """Resampling: particles ``idx`` replace the set (maps copied), log weights 0."""
-    P.poses[:] = P.poses[idx]
-    P.mu[:] = P.mu[idx]
-    P.sigma[:] = P.sigma[idx]
-    P.n[:] = P.n[idx]
-    P.ident[:] = P.ident[idx]
-    P.seen[:] = P.seen[idx]
-    P.missed[:] = P.missed[idx]
-    P.evidence[:] = P.evidence[idx]
-    P.log_odds[:] = P.log_odds[idx]
-    P.last_t[:] = P.last_t[idx]
-    P.first_t[:] = P.first_t[idx]
+    take_particles(P.poses, idx)
+    take_particles(P.mu, idx)
+    take_particles(P.sigma, idx)
+    take_particles(P.n, idx)
+    take_particles(P.ident, idx)
+    take_particles(P.seen, idx)
+    take_particles(P.missed, idx)
+    take_particles(P.evidence, idx)
+    take_particles(P.log_odds, idx)
+    take_particles(P.last_t, idx)
+    take_particles(P.first_t, idx)
     P.logw[:] = 0.0
+
+
+@njit(cache=True)
+def take_particles(a, idx):
+    """``a[:] = a[idx]`` for ``a`` (M, ...) in C order: row ``m`` becomes row ``idx[m]`` of a copy of ``a``, number
+    by number (an array assignment compiles numba's shape check and its error message: seconds of compilation)."""
+    m_count = a.shape[0]
+    before, after = a.copy().reshape(m_count, -1), a.reshape(m_count, -1)
+    for m in range(m_count):
+        for i in range(after.shape[1]):
+            after[m, i] = before[idx[m], i]
 
 
 # ---------------------------------------------------------------- the run over a log
@@ -823,12 +839,14 @@ class AssociationRecord(NamedTuple):
 
 
 @njit(cache=True)
-def run_unknown_segments(P, L, s, rules, segments, rng, out):
+def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
     """Steps 1–4 over ``segments`` (S, 2) with unknown correspondences.
 
     ``L``: the stream (:class:`fastslam_edu.landmark.fastslam_step.Log`; its ``j`` is never read), ``s``: the
     motion noise and resampling settings (:class:`fastslam_edu.landmark.fastslam_step.Settings`), ``rules``
-    (:class:`Rules`), ``out``: :class:`AssociationRecord`.
+    (:class:`Rules`), ``out``: :class:`AssociationRecord`; ``x_start``: None for FastSLAM 1.0, an (M, 3)
+    buffer for FastSLAM 2.0 (as :func:`fastslam_edu.landmark.fastslam_step.run_segments`: the proposal's
+    kernels compiled only for a FastSLAM 2.0 run).
     """
     M = P.poses.shape[0]
     w = out.w
@@ -839,7 +857,9 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out):
             return r  # the record of hand-overs could fill up at this instant: the caller makes it larger, and on
         measured = b > a
         n_record = last - first + (0 if measured else 1)
-        x_start = P.poses.copy() if s.proposal == 1 else P.poses[:0].copy()
+        if x_start is not None:
+            for m in range(M):
+                copy_row(P.poses, m, x_start[m])
         eps = np.empty((last - first + 1, s.n_draws, M))
         standard_normals(rng, eps)
         sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, w,
@@ -849,15 +869,15 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out):
         q = out.totals[0]
         before = out.next_ident[0]
         instant = (L.z[a:b], L.R[a:b], L.t[last])
-        if s.proposal == 1:
+        if x_start is None:  # (decided when numba compiles)
+            cloud = pose_covariance(P.poses, w) * rules.pose_scale
+            for m in range(M):
+                associate_particle(P, m, instant, rules, out.next_ident, out.assoc[m, a:b], cloud)
+        else:
             x_bar, cov = motion_prediction_of(x_start, L.u[first:last + 1], L.dt[first:last + 1], s)
             for m in range(M):
                 associate_particle_improved(P, m, instant, rules, out.next_ident, out.assoc[m, a:b],
                                             (x_bar[m], cov[m]), rng)
-        else:
-            cloud = pose_covariance(P.poses, w) * rules.pose_scale
-            for m in range(M):
-                associate_particle(P, m, instant, rules, out.next_ident, out.assoc[m, a:b], cloud)
         for m in range(M):
             retire_landmarks(P, m, rules, out.renames, out.totals[0])
         out.totals[2] += out.next_ident[0] - before
@@ -868,12 +888,13 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out):
         if s.resample_threshold >= 1.0 or n_eff < s.resample_threshold * M:
             idx = resampling_indices(w, rng, s.resampler)
             select_maps(P, idx)
-            out.parents[q] = idx
+            for m in range(M):
+                out.parents[q, m] = idx[m]
             w[:] = 1.0 / M
             out.totals[1] += 1
         out.totals[0] += 1
         weighted_mean_pose(P.poses, w, out.pose_mean[last])
-        out.pose_best[last] = P.poses[np.argmax(w)]
+        copy_row(P.poses, np.argmax(w), out.pose_best[last])
     return segments.shape[0]
 
 
@@ -961,6 +982,8 @@ class AssociationResult:
     more), its copies merged (:func:`merge_copies`). ``history`` (n,): the identity that particle (through its
     ancestors) gave each sighting of the stream (-1: none), read through the hand-overs and the merges.
     ``n_provisional``: its landmarks still provisional at the end. ``particles``: the final set.
+    ``filter_seconds``: the run's wall time without ``compile_seconds``, numba's compiling (or loading from
+    its cache) of the kernels (:class:`fastslam_edu.core.timing.RunTimer`).
     """
 
     t: np.ndarray
@@ -977,6 +1000,7 @@ class AssociationResult:
     filter_seconds: float
     particles: MapParticles
     params: AssociationParams
+    compile_seconds: float = 0.0
 
 
 def run_unknown(stream: EventStream, params: AssociationParams = AssociationParams(), rng=0, *,
@@ -1011,17 +1035,17 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
                             np.zeros(1, dtype=np.int64), np.zeros(3, dtype=np.int64),
                             np.zeros((4 * M * params.max_landmarks + 1, 4), dtype=np.int64))
     segments = np.array(list(_segments(stream)), dtype=np.int64).reshape(-1, 2)
-    t0 = time.perf_counter()
+    x_start = np.empty((M, 3)) if fp.proposal == "fastslam2" else None
     done = 0
-    while done < len(segments):
-        done += run_unknown_segments(P, log, settings, rules, segments[done:], rng, out)
-        if done < len(segments):  # the record of hand-overs is full: twice the room, and on
-            grown = np.zeros((2 * len(out.renames), 4), dtype=np.int64)
-            grown[:len(out.renames)] = out.renames
-            out = out._replace(renames=grown)
+    with RunTimer() as timer:  # filter_seconds without the compilation of the kernels (compile_seconds)
+        while done < len(segments):
+            done += run_unknown_segments(P, log, settings, rules, segments[done:], rng, out, x_start)
+            if done < len(segments):  # the record of hand-overs is full: twice the room, and on
+                grown = np.zeros((2 * len(out.renames), 4), dtype=np.int64)
+                grown[:len(out.renames)] = out.renames
+                out = out._replace(renames=grown)
     w, pose_mean, pose_best, totals = out.w, out.pose_mean, out.pose_best, out.totals
     assoc, parents, instant_of = out.assoc, out.parents, out.instant_of
-    seconds = time.perf_counter() - t0
     best = int(np.argmax(w))
     k = np.arange(P.n[best])
     keep = k[P.evidence[best, k] >= params.n_confirm]
@@ -1033,8 +1057,8 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
         t=np.asarray(stream.t, dtype=float), pose_mean=pose_mean, pose_best=pose_best,
         landmarks=landmarks, landmarks_cov=cov, landmark_ident=ident, landmark_seen=seen,
         history=history, n_provisional=int(len(k) - len(keep)),
-        landmarks_created=int(totals[2]), n_resamples=int(totals[1]), filter_seconds=seconds, particles=P,
-        params=params)
+        landmarks_created=int(totals[2]), n_resamples=int(totals[1]), filter_seconds=timer.filter_seconds, particles=P,
+        params=params, compile_seconds=timer.compile_seconds)
 
 
 __all__ = ["AssociationParams", "AssociationResult", "MapParticles", "Rules", "initial_particles",

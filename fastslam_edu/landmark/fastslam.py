@@ -47,7 +47,6 @@ landmark has been rejected for ``gate_escape_s`` seconds (:func:`update_with_mea
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,6 +62,7 @@ from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.core.params import Params
 from fastslam_edu.landmark.proposal import motion_prediction, sample_improved_poses, segment_motion
 from fastslam_edu.core.resampling import get_resampler
+from fastslam_edu.core.timing import RunTimer
 
 MODES = ("slam", "localize", "map")
 PROPOSALS = ("motion", "fastslam2")
@@ -561,7 +561,8 @@ class FastSLAMResult:
     landmarks_best : (K, 2) map of the highest-weight particle at the end
     ess_t, ess : times and :math:`N_\\text{eff}` at every step that had measurements
     n_resamples, measurements_used, measurements_rejected : counts
-    filter_seconds : wall time of the filter loop
+    filter_seconds : wall time of the filter loop, without compilation
+    compile_seconds : wall time numba spent compiling its kernels in the loop, or loading them from its cache
     particles : the final ParticleSet (dense arrays)
     final : the final particle set as the filter stored it (a ParticleSet, or tree-backed)
     """
@@ -583,6 +584,7 @@ class FastSLAMResult:
     params: FastSLAMParams
     landmark_subjects: np.ndarray
     final: object = None
+    compile_seconds: float = 0.0
 
 
 def _segments(stream: EventStream, cut_times=()):
@@ -602,6 +604,18 @@ def _segments(stream: EventStream, cut_times=()):
         if end >= start:
             yield start, end
         start = end + 1
+
+
+def segment_chunks(segments: np.ndarray, max_steps: int):
+    """``(a, b)``: runs ``segments[a:b]`` of whole segments (S, 2) covering at most ``max_steps`` steps each
+    (a longer segment alone), in order: what the compiled run does between two calls to the hooks."""
+    a = 0
+    while a < len(segments):
+        b = a + 1
+        while b < len(segments) and segments[b, 1] - segments[a, 0] + 1 <= max_steps:
+            b += 1
+        yield a, b
+        a = b
 
 
 def stream_commands(stream: EventStream, params: FastSLAMParams):
@@ -705,9 +719,16 @@ class Hook:
     whole step (with ``run.measured`` True when it had sightings); ``close(run)``
     at the end. ``cut_times``: times at which a segment must end (a hook that acts
     at a time).
+
+    ``chunk_steps``: a hook that uses only ``after_step`` and ``close`` sets it to the
+    number of steps it lets the compiled run make between two calls; the run then
+    stays compiled (:meth:`FilterRun.run_compiled`) and calls ``after_step(run, s, e)``
+    once per chunk of steps ``s..e`` (whole segments; ``run.measured``: whether step
+    ``e`` had sightings). None (the default): the hook needs the step-by-step Python loop.
     """
 
     cut_times: tuple = ()
+    chunk_steps: int | None = None
 
     def after_motion(self, run: "FilterRun", s: int, e: int) -> None:
         pass
@@ -743,8 +764,11 @@ class Monitor(Hook):
     With the step's time, the particle set as stored and the normalised weights
     the step's estimate used: a way to look inside the filter (chapter "Is the
     filter's uncertainty honest?") without changing it. The callback must not
-    modify them; its time counts in ``filter_seconds``.
+    modify them; its time counts in ``filter_seconds``. Served by the compiled run after each
+    measurement step (chunks of one segment).
     """
+
+    chunk_steps = 1
 
     def __init__(self, callback):
         self.callback = callback
@@ -754,8 +778,15 @@ class Monitor(Hook):
             self.callback(run.stream.t[e], run.particles, run.w)
 
 
+#: Steps the compiled run makes between two updates of the progress bar (a few hundredths of a second).
+PROGRESS_CHUNK_STEPS = 4096
+
+
 class ProgressBar(Hook):
-    """A tqdm progress bar over the steps."""
+    """A tqdm progress bar over the steps, updated between compiled chunks of :data:`PROGRESS_CHUNK_STEPS` steps
+    (as fast as no bar)."""
+
+    chunk_steps = PROGRESS_CHUNK_STEPS
 
     def __init__(self):
         self.bar = None
@@ -835,14 +866,17 @@ class FilterRun:
         self.pose_best[e] = self.particles.poses[int(np.argmax(self.w))]
 
     def compiled(self, hooks) -> bool:
-        """Whether :meth:`run_compiled` can run this filter: FastSLAM 1.0's or 2.0's proposal, dense particles, no hooks."""
-        return (not hooks and type(self.proposal) in (MotionProposal, ImprovedProposal)
+        """Whether :meth:`run_compiled` can run this filter: FastSLAM 1.0's or 2.0's proposal, dense particles,
+        hooks that can wait for a chunk of steps (:attr:`Hook.chunk_steps`)."""
+        return (all(hook.chunk_steps is not None for hook in hooks)
+                and type(self.proposal) in (MotionProposal, ImprovedProposal)
                 and type(self.particles) is ParticleSet and self.params.resampler in RESAMPLER_CODES)
 
-    def run_compiled(self, segments: np.ndarray) -> None:
-        """Steps 1–4 over all ``segments`` in one compiled call (:func:`fastslam_edu.landmark.fastslam_step.run_segments`):
-        the same lines as the Python loop of :func:`run_fastslam` and the same random numbers, without
-        returning to Python between steps."""
+    def run_compiled(self, segments: np.ndarray, hooks=()) -> None:
+        """Steps 1–4 over all ``segments`` in compiled calls (:func:`fastslam_edu.landmark.fastslam_step.run_segments`):
+        the same lines as the Python loop of :func:`run_fastslam` and the same random numbers, returning to
+        Python only between chunks of segments, to serve the ``hooks`` (one call without hooks); the result
+        does not depend on the chunks."""
         p, stream = self.params, self.stream
         log = Log(np.asarray(stream.t, dtype=float), self.u, self.dt, np.asarray(stream.offsets, dtype=np.int64),
                   np.asarray(stream.z, dtype=float).reshape(-1, 2), np.asarray(stream.landmark, dtype=np.int64),
@@ -856,13 +890,20 @@ class FilterRun:
         record = Record(self.pose_mean, self.pose_best, np.empty(n_instants), np.empty(n_instants),
                         np.array(self.w, dtype=float), self.gate.unexplained_since, self.last_seen,
                         np.zeros(4, dtype=np.int64))
-        run_segments(self.particles.arrays(), log, settings, segments, self.rng, record)
-        self.w = record.w
+        x_start = np.empty((len(self.particles), 3)) if type(self.proposal) is ImprovedProposal else None
+        self.w = record.w  # changed in place by the run: what hooks see between chunks
+        chunk = min((hook.chunk_steps for hook in hooks), default=len(self.stream))
+        for a, b in segment_chunks(segments, chunk):
+            run_segments(self.particles.arrays(), log, settings, segments[a:b], self.rng, record, x_start)
+            s, e = int(segments[a, 0]), int(segments[b - 1, 1])
+            self.measured = bool(stream.offsets[e + 1] > stream.offsets[e])
+            for hook in hooks:
+                hook.after_step(self, s, e)
         self.ess_t, self.ess = list(record.ess_t), list(record.ess)
         self.used, self.rejected, self.n_resamples = (int(v) for v in record.totals[1:])
 
-    def result(self, filter_seconds: float) -> FastSLAMResult:
-        """Step 4 at the end: the combined map and the run's record."""
+    def result(self, filter_seconds: float, compile_seconds: float = 0.0) -> FastSLAMResult:
+        """Step 4 at the end: the combined map and the run's record (times in seconds, :class:`RunTimer`)."""
         final, particles = self.particles, self.particles.to_particle_set()
         mu, sigma, observed = combined_map(particles)
         best = int(np.argmax(particles.logw))
@@ -873,7 +914,7 @@ class FilterRun:
             ess_t=np.asarray(self.ess_t), ess=np.asarray(self.ess), n_resamples=self.n_resamples,
             measurements_used=self.used, measurements_rejected=self.rejected, filter_seconds=filter_seconds,
             particles=particles, params=self.params, landmark_subjects=np.asarray(self.stream.landmark_subjects),
-            final=final,
+            final=final, compile_seconds=compile_seconds,
         )
 
 
@@ -944,10 +985,19 @@ def run_fastslam(
                     particle_class=particle_class)
     run.hooks = tuple(hooks)
     cut_times = [t for hook in hooks for t in hook.cut_times]
-    t_start = time.perf_counter()
-    if run.compiled(hooks):  # the same steps in one compiled call
-        run.run_compiled(np.array(list(_segments(stream, cut_times)), dtype=np.int64).reshape(-1, 2))
-        return run.result(time.perf_counter() - t_start)
+    with RunTimer() as timer:  # filter_seconds without the compilation of the kernels (compile_seconds)
+        if run.compiled(hooks):  # the same steps in compiled chunks
+            run.run_compiled(np.array(list(_segments(stream, cut_times)), dtype=np.int64).reshape(-1, 2), hooks)
+        else:
+            run_python_loop(run, cut_times)
+        for hook in hooks:
+            hook.close(run)
+    return run.result(timer.filter_seconds, timer.compile_seconds)
+
+
+def run_python_loop(run: FilterRun, cut_times) -> None:
+    """Steps 1–4 segment by segment in Python, with every hook's calls (:class:`Hook`)."""
+    stream, hooks = run.stream, run.hooks
     for s, e in _segments(stream, cut_times):
         run.measured = stream.offsets[e + 1] > stream.offsets[e]
         last = e if run.measured else e + 1  # a measurement step's estimate is taken after the update
@@ -958,9 +1008,6 @@ def run_fastslam(
             run.measure(s, e)
         for hook in hooks:
             hook.after_step(run, s, e)
-    for hook in hooks:
-        hook.close(run)
-    return run.result(time.perf_counter() - t_start)
 
 
 __all__ = [
@@ -990,4 +1037,7 @@ __all__ = [
     "combined_pose",
     "combined_map",
     "run_fastslam",
+    "run_python_loop",
+    "segment_chunks",
+    "PROGRESS_CHUNK_STEPS",
 ]

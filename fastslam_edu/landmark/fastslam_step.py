@@ -53,7 +53,7 @@ from numba import njit
 
 from fastslam_edu.core.angles import wrap_one
 from fastslam_edu.core.ekf import ekf_initialise, ekf_innovation, ekf_update
-from fastslam_edu.core.resampling import (inverse_cdf_unchecked, roulette_positions, stratified_positions,
+from fastslam_edu.core.resampling import (inverse_cdf_unchecked, roulette_indices, stratified_positions,
                                           systematic_positions)
 from fastslam_edu.landmark.proposal import predict_into, sample_improved, segment_motion_into
 
@@ -256,10 +256,9 @@ def update_particle(P, m, s, gate_chi2, update_map):
     if not P.seen[m, j]:
         initialise_landmark(P, m, s)
         return
-    if update_map:
-        d2, loglik = ekf_update(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j], gate_chi2)
-    else:
-        d2, loglik = ekf_innovation(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j])[9:]
+    # without update_map, a gate at -inf: the innovation's (d2, loglik), the landmark left alone (one compiled
+    # copy of the innovation instead of two)
+    d2, loglik = ekf_update(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j], gate_chi2 if update_map else -math.inf)
     if not math.isnan(s.loglik[m]):
         loglik = s.loglik[m]
     outlier = d2 > gate_chi2  # the landmark was left alone
@@ -420,27 +419,25 @@ RESAMPLER_CODES = {"systematic": 0, "stratified": 1, "roulette": 2, "multinomial
 def resampling_indices(w, rng, code):
     """The particles drawn by resampler ``code`` (:data:`RESAMPLER_CODES`), with the kernels of
     :mod:`fastslam_edu.core.resampling`: positions ``u_j`` (systematic ``(j + U) / M``; stratified
-    ``(j + U_j) / M``; roulette ``U_j`` sorted), then the inverse CDF, ``min{i : c_i > u_j}``."""
+    ``(j + U_j) / M``; roulette ``U_j`` sorted), then the inverse CDF, ``min{i : c_i > u_j}`` (roulette:
+    :func:`fastslam_edu.core.resampling.roulette_indices`, the same indices without a sort)."""
     m = w.shape[0]
-    if code == 0:
-        u = systematic_positions(m, rng)
-    elif code == 1:
-        u = stratified_positions(m, rng)
-    else:
-        u = roulette_positions(m, rng)
+    if code == 2:  # the same indices, counted instead of sorted (no sort to compile)
+        return roulette_indices(w / np.sum(w), rng)
+    u = systematic_positions(m, rng) if code == 0 else stratified_positions(m, rng)
     return inverse_cdf_unchecked(u, w / np.sum(w))
 
 
-@njit(cache=True, inline="always")
-def copy_particle(P, i, m):
-    """Particle ``i``'s pose and map written over particle ``m``'s."""
+@njit(cache=True)
+def copy_particle(src, i, dst, m):
+    """Particle ``i`` of ``src``: its pose and map written over particle ``m`` of ``dst`` (both :class:`Particles`)."""
     for a in range(3):
-        P.poses[m, a] = P.poses[i, a]
-    for k in range(P.mu.shape[1]):
-        P.mu[m, k, 0], P.mu[m, k, 1] = P.mu[i, k, 0], P.mu[i, k, 1]
-        P.sigma[m, k, 0, 0], P.sigma[m, k, 0, 1] = P.sigma[i, k, 0, 0], P.sigma[i, k, 0, 1]
-        P.sigma[m, k, 1, 0], P.sigma[m, k, 1, 1] = P.sigma[i, k, 1, 0], P.sigma[i, k, 1, 1]
-        P.seen[m, k], P.count[m, k] = P.seen[i, k], P.count[i, k]
+        dst.poses[m, a] = src.poses[i, a]
+    for k in range(src.mu.shape[1]):
+        dst.mu[m, k, 0], dst.mu[m, k, 1] = src.mu[i, k, 0], src.mu[i, k, 1]
+        dst.sigma[m, k, 0, 0], dst.sigma[m, k, 0, 1] = src.sigma[i, k, 0, 0], src.sigma[i, k, 0, 1]
+        dst.sigma[m, k, 1, 0], dst.sigma[m, k, 1, 1] = src.sigma[i, k, 1, 0], src.sigma[i, k, 1, 1]
+        dst.seen[m, k], dst.count[m, k] = src.seen[i, k], src.count[i, k]
 
 
 @njit(cache=True)
@@ -460,16 +457,14 @@ def select_in_place(P, idx):
     if increasing:
         for m in range(idx.shape[0]):
             if idx[m] > m:
-                copy_particle(P, idx[m], m)
+                copy_particle(P, idx[m], P, m)
         for m in range(idx.shape[0] - 1, -1, -1):
             if idx[m] < m:
-                copy_particle(P, idx[m], m)
+                copy_particle(P, idx[m], P, m)
     else:
-        P.poses[:] = P.poses[idx]
-        P.mu[:] = P.mu[idx]
-        P.sigma[:] = P.sigma[idx]
-        P.seen[:] = P.seen[idx]
-        P.count[:] = P.count[idx]
+        before = Particles(P.poses.copy(), P.mu.copy(), P.sigma.copy(), P.seen.copy(), P.count.copy(), P.logw)
+        for m in range(idx.shape[0]):
+            copy_particle(before, idx[m], P, m)
     P.logw[:] = 0.0
 
 
@@ -529,7 +524,9 @@ def measure_instant(P, L, s, k, rng, out, prediction):
     """Steps 2–4 at measurement step ``k``: gate, update, weights, resampling, the combined pose.
 
     ``P`` :class:`Particles`, ``L`` :class:`Log`, ``s`` :class:`Settings`, ``out`` :class:`Record`;
-    ``prediction``: FastSLAM 2.0's :math:`(\\bar x, P)` ((M, 3), (M, 3, 3), :func:`motion_prediction_of`).
+    ``prediction``: FastSLAM 2.0's :math:`(\\bar x, P)` ((M, 3), (M, 3, 3), :func:`motion_prediction_of`), or
+    None for FastSLAM 1.0 — then numba drops the proposal's branch before compiling (it prunes a test
+    ``is None`` on an argument), and a FastSLAM 1.0 run never compiles FastSLAM 2.0's kernels.
     """
     a, b = L.offsets[k], L.offsets[k + 1]
     j, t = L.j[a:b], L.t[k]
@@ -538,7 +535,7 @@ def measure_instant(P, L, s, k, rng, out, prediction):
     gate_escapes(t, j, out.unexplained_since, s.escape_s, escape)
     tempering_exponents(t, j, out.last_seen, s.tau, beta)
     S = Sightings(L.z[a:b], j, L.R[a:b], escape, beta, np.full((P.poses.shape[0], n), np.nan))
-    if s.proposal == 1:  # FastSLAM 2.0: the poses drawn given the sightings too, S.loglik their weights
+    if prediction is not None:  # FastSLAM 2.0: the poses drawn given the sightings too, S.loglik their weights
         sample_improved(P, S, prediction[0], prediction[1], s.gate_chi2, s.min_count, rng)
     update_particles(P, S, s.gate_chi2, s.update_map, explained)
     gate_record(t, j, explained, out.unexplained_since)
@@ -556,37 +553,58 @@ def measure_instant(P, L, s, k, rng, out, prediction):
         out.w[:] = 1.0 / m
         out.totals[3] += 1
     weighted_mean_pose(P.poses, out.w, out.pose_mean[k])
-    out.pose_best[k] = P.poses[np.argmax(out.w)]
+    copy_row(P.poses, np.argmax(out.w), out.pose_best[k])
 
 
 @njit(cache=True)
 def motion_prediction_of(x_start, u, dt, s):
     """FastSLAM 2.0's motion prediction :math:`(\\bar x, P)` through the steps ``u`` (L, 2), ``dt`` (L,) for the
-    particles that started at ``x_start`` (M, 3) (:mod:`fastslam_edu.landmark.proposal`); empty for FastSLAM 1.0."""
+    particles that started at ``x_start`` (M, 3) (:mod:`fastslam_edu.landmark.proposal`)."""
     x_bar, cov = np.empty((x_start.shape[0], 3)), np.empty((x_start.shape[0], 3, 3))
-    if s.proposal == 1:
-        delta, P_rel = np.empty(3), np.empty((3, 3))
-        segment_motion_into(u, dt, s.noise, s.n_draws == 2, delta, P_rel)
-        predict_into(x_start, delta, P_rel, x_bar, cov)
+    delta, P_rel = np.empty(3), np.empty((3, 3))
+    segment_motion_into(u, dt, s.noise, s.n_draws == 2, delta, P_rel)
+    predict_into(x_start, delta, P_rel, x_bar, cov)
     return x_bar, cov
 
 
 @njit(cache=True)
-def run_segments(P, L, s, segments, rng, out):
+def copy_row(a, i, out):
+    """``out[:] = a[i]`` for ``a`` (n, 3) written entry by entry (an array assignment would compile numba's
+    shape check and its error message, seconds of compilation for three numbers)."""
+    out[0], out[1], out[2] = a[i, 0], a[i, 1], a[i, 2]
+
+
+@njit(cache=True)
+def run_segments(P, L, s, segments, rng, out, x_start):
     """Steps 1–4 over ``segments`` (S, 2): runs of steps ``start..end``, each ending at a measurement step
-    or a cut; for each, line 4 for every particle (:func:`sample_segment`), then :func:`measure_instant`."""
+    or a cut; for each, line 4 for every particle (:func:`sample_segment`), then :func:`measure_instant`.
+
+    ``x_start``: None for FastSLAM 1.0; for FastSLAM 2.0 an (M, 3) buffer for the poses each segment
+    starts from, which its proposal conditions on (:func:`motion_prediction_of`). The test ``x_start is
+    None`` is decided when numba compiles (one compiled run per proposal, FastSLAM 2.0's kernels only
+    when asked for). With no segments (S = 0) nothing runs: the call compiles the run, or loads it from
+    numba's cache (:meth:`fastslam_edu.landmark.fastslam.FilterRun.run_compiled` times that apart).
+    """
     m = P.poses.shape[0]
-    longest = np.max(segments[:, 1] - segments[:, 0]) + 1 if segments.shape[0] else 0
+    longest = 0
+    for r in range(segments.shape[0]):
+        longest = max(longest, segments[r, 1] - segments[r, 0] + 1)
     normals = np.empty((longest, s.n_draws, m))  # one buffer for every segment's normals
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
         measured = L.offsets[last + 1] > L.offsets[last]
         n_record = last - first + (0 if measured else 1)  # a measurement step's estimate comes after the update
-        x_start = P.poses.copy() if s.proposal == 1 else P.poses[:0].copy()
+        if x_start is not None:
+            for i in range(m):
+                copy_row(P.poses, i, x_start[i])
         eps = normals[:last - first + 1]
         standard_normals(rng, eps)
         sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
                        out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
-        if measured:
+        if not measured:
+            continue
+        if x_start is None:  # (numba prunes a test on an argument only when it stands alone)
+            measure_instant(P, L, s, last, rng, out, None)
+        else:
             prediction = motion_prediction_of(x_start, L.u[first:last + 1], L.dt[first:last + 1], s)
             measure_instant(P, L, s, last, rng, out, prediction)
