@@ -204,3 +204,124 @@ def test_cli_refuses_the_backend_without_gtsam_or_without_smooth(dataset_dir, tm
     err = capsys.readouterr().err
     assert err == "fastslam-edu run: error: backend='gtsam' needs GTSAM: pip install 'fastslam-edu[graph]'\n"
     assert not (tmp_path / "x.json").exists()
+
+
+# --------------------------------------------------------------------------- several robots (smooth_robots)
+
+
+def _robots(seed: int, n_robots: int, duration: float):
+    """A simulated team that sees the landmarks and each other: streams and robot-robot sightings per robot."""
+    from fastslam_edu.datasets.events import event_stream
+
+    data = simulate_dataset(seed, n_robots=n_robots, see_robots=True, duration=duration)
+    streams = {r: event_stream(log, data.landmark_subjects) for r, log in data.robots.items()}
+    return streams, {r: log.robot_sightings for r, log in data.robots.items()}
+
+
+@pytest.mark.parametrize("seed, n_robots", [(1, 2), (2, 3)])
+def test_both_backends_reach_the_same_optimum_with_several_robots(seed, n_robots):
+    """smooth_robots, same gated set, no Huber round: every robot's path and the shared map within 1 mm, the cost
+    within 1e-6 relative, the landmarks' Laplace σ within 1 %; the robot-robot sightings are used (and gated) alike."""
+    pytest.importorskip("gtsam")
+    from fastslam_edu.landmark.multi_robot import smooth_robots
+
+    streams, sightings = _robots(seed, n_robots, 40.0)
+    a = smooth_robots(streams, sightings, _params(), solver=NO_HUBER)
+    b = smooth_robots(streams, sightings, _params(), solver=NO_HUBER, backend="gtsam")
+    assert (a.backend, b.backend, b.robot(1).backend) == ("scipy", "gtsam", "gtsam")
+    assert a.robot_sightings_used > 20 and a.measurements_used > 100
+    assert (b.robot_sightings_used, b.robot_sightings_gated) == (a.robot_sightings_used, a.robot_sightings_gated)
+    assert (b.measurements_used, b.measurements_rejected) == (a.measurements_used, a.measurements_rejected)
+    for r in a.robots:
+        assert np.abs(b.poses[r][:, :2] - a.poses[r][:, :2]).max() < 1e-3
+        assert np.abs(np.angle(np.exp(1j * (b.poses[r][:, 2] - a.poses[r][:, 2])))).max() < 1e-4
+    np.testing.assert_array_equal(b.observed, a.observed)
+    assert np.abs(b.landmarks[a.observed] - a.landmarks[a.observed]).max() < 1e-3
+    assert abs(b.cost - a.cost) <= 1e-6 * a.cost
+    np.testing.assert_allclose(_sigmas(b), _sigmas(a), rtol=0.01)
+
+
+def test_the_robots_factor_graph_error_is_the_package_cost():
+    """Away from the optimum, GTSAM's error of the several-robot graph is the package's ½ rᵀr (and Σρ with the Huber
+    loss on every sighting, landmarks' and robots'): the same factors, robot-robot sightings included."""
+    pytest.importorskip("gtsam")
+    from fastslam_edu.landmark import multi_robot
+    from fastslam_edu.landmark.smoother import levenberg_marquardt
+
+    streams, sightings = _robots(3, 3, 30.0)
+    captured = {}
+
+    def capture(problem, v, active, **kw):  # the joint problem as solve_with_gate hands it over
+        captured.update(problem=problem, v=v.copy(), active=active.copy())
+        return levenberg_marquardt(problem, v, active, **kw)
+
+    original = multi_robot._backend
+    try:
+        multi_robot._backend = lambda backend: (capture, multi_robot.laplace_landmarks)
+        multi_robot.smooth_robots(streams, sightings, _params(), solver=NO_HUBER.replace(max_rounds=1))
+    finally:
+        multi_robot._backend = original
+    problem, v = captured["problem"], captured["v"]
+    assert len(problem.ra) > 20
+    rng = np.random.default_rng(4)
+    v = v + rng.normal(scale=0.05, size=v.shape)
+    for slot, x0 in zip(problem.prior_slot, problem.x0):  # the priors' Log differs from x - x̄ to second order only
+        v[3 * slot:3 * slot + 3] = x0 + rng.normal(scale=1e-4, size=3)  # (module docstring): keep it within 1 σ
+    huber = 1.5
+    for active in (np.ones(len(problem.z), dtype=bool), rng.random(len(problem.z)) < 0.5):
+        values = smoother_gtsam.to_values(problem, v)
+        assert smoother_gtsam.factor_graph(problem, active).error(values) == pytest.approx(
+            _package_cost(problem, v, active), rel=1e-9)
+        r, _, rows = problem.evaluate(v, active)
+        s = np.linalg.norm(r[rows].reshape(-1, 2), axis=1)
+        rho = np.where(s <= huber, 0.5 * s * s, huber * s - 0.5 * huber * huber)
+        other = np.ones(len(r), dtype=bool)
+        other[rows] = False
+        assert (s > huber).sum() > 10
+        assert smoother_gtsam.factor_graph(problem, active, huber).error(values) == pytest.approx(
+            0.5 * r[other] @ r[other] + rho.sum(), rel=1e-9)
+
+
+@pytest.mark.parametrize("huber", [None, 20.0])
+def test_robot_sighting_factor_matches_the_package_and_finite_differences(huber):
+    """A group of robot-robot sightings as one CustomFactor (two sightings share a pose): its error is the package's
+    whitened residuals (the Huber loss's ½‖g r‖² = ρ per sighting), its Jacobians central differences of that error
+    under GTSAM's retraction x exp(δ)."""
+    gtsam = pytest.importorskip("gtsam")
+    from fastslam_edu.landmark.multi_robot import compose
+    from fastslam_edu.landmark.smoother import measurement_residuals, whitening
+
+    rng = np.random.default_rng(5)
+    ra, rb = np.array([0, 2, 0]), np.array([1, 3, 3])
+    x = rng.normal(size=(4, 3)) * [2.0, 2.0, 1.5]
+    da, db = rng.normal(size=(3, 3)) * 0.3, rng.normal(size=(3, 3)) * 0.3
+    z = np.c_[rng.uniform(1, 3, 3), rng.uniform(-1, 1, 3)]
+    L = rng.normal(size=(3, 2, 2)) * 0.1
+    W = whitening(L @ np.swapaxes(L, 1, 2) + 0.01 * np.eye(2))
+    factor = smoother_gtsam.robot_sighting_factor(ra, rb, da, db, z, W, huber)
+
+    def values_at(poses):
+        values = gtsam.Values()
+        for i, p in enumerate(poses):
+            values.insert(smoother_gtsam.pose_key(i), p)
+        return values
+
+    poses = [gtsam.Pose2(*p) for p in x]
+    e = measurement_residuals(compose(x[ra], da), compose(x[rb], db)[:, :2], z)[0]
+    r = np.einsum("nij,nj->ni", W, e)
+    s = np.linalg.norm(r, axis=1)
+    if huber is None:
+        np.testing.assert_allclose(factor.unwhitenedError(values_at(poses)), r.ravel(), atol=1e-12)
+    else:
+        assert (s > huber).any() and (s <= huber).any()
+        rho = np.where(s <= huber, 0.5 * s * s, huber * s - 0.5 * huber * huber)
+        assert factor.error(values_at(poses)) == pytest.approx(rho.sum(), rel=1e-12)
+    jacobian = factor.linearize(values_at(poses)).jacobian()[0]
+    numeric = np.zeros((6, 12))
+    for col in range(12):
+        d = np.zeros(3)
+        d[col % 3] = 1e-6
+        plus, minus = list(poses), list(poses)
+        plus[col // 3], minus[col // 3] = poses[col // 3].retract(d), poses[col // 3].retract(-d)
+        numeric[:, col] = (factor.unwhitenedError(values_at(plus)) - factor.unwhitenedError(values_at(minus))) / 2e-6
+    np.testing.assert_allclose(jacobian, numeric, atol=1e-5)

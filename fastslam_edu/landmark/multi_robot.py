@@ -101,6 +101,7 @@ class MultiRobotResult:
         of either robot
     seconds : wall time
     notes : remarks for the reader (e.g. that there is no robot-robot sighting at all)
+    backend : which solver ran, ``"scipy"`` (the package's) or ``"gtsam"`` (:mod:`.smoother_gtsam`)
     """
 
     robots: tuple
@@ -122,6 +123,7 @@ class MultiRobotResult:
     robot_sightings_skipped: int
     seconds: float
     notes: list = field(default_factory=list)
+    backend: str = "scipy"
 
     def robot(self, a: int) -> SmootherResult:
         """Robot ``a``'s path with the shared map, as a single-robot :class:`SmootherResult` (for scoring);
@@ -134,7 +136,7 @@ class MultiRobotResult:
             landmark_subjects=self.landmark_subjects, iterations=self.iterations, rounds=self.rounds,
             cost=self.cost, measurements_used=self.measurements_used,
             measurements_rejected=self.measurements_rejected,
-            measurements_zero_weight=self.measurements_zero_weight, seconds=self.seconds,
+            measurements_zero_weight=self.measurements_zero_weight, seconds=self.seconds, backend=self.backend,
         )
 
 
@@ -410,6 +412,7 @@ def smooth_robots(
     x0_std=PRIOR_STD,
     max_gap_s: float = 1.0,
     solver: SolverSettings = SolverSettings(),
+    backend: str = "scipy",
 ) -> MultiRobotResult:
     """The least-squares paths of several robots and their shared map (see the module docstring).
 
@@ -432,12 +435,17 @@ def smooth_robots(
         Keyframe spacing (:func:`~fastslam_edu.landmark.smoother.keyframe_steps`).
     solver : SolverSettings
         Iterations, gate rounds, tempering (``BEST_ESTIMATE``: none). ``calibrate`` is not supported here.
+    backend : ``"scipy"`` or ``"gtsam"``
+        Who minimises each gate round and computes the landmarks' Laplace covariances: the package's
+        Levenberg–Marquardt, or GTSAM's on the same factors (:func:`fastslam_edu.landmark.smoother_gtsam.robots_factor_graph`;
+        needs the extra ``graph``). The gate's rounds are the package's on both.
 
     Returns
     -------
     MultiRobotResult
     """
     started = time.perf_counter()
+    minimise, landmark_covariances = _backend(backend)
     params = FastSLAMParams() if params is None else params
     if not isinstance(streams, dict) or not streams:
         raise ValueError("smooth_robots: streams must be a non-empty dict robot → EventStream")
@@ -503,9 +511,9 @@ def smooth_robots(
         Wg=cat([*(own[a].Wg for a in robots), Wg_s[used_s]]),
     )
     v = _joint_start(problem, robots, own, starts, slot, column, len(seen_all))
-    v, active, iterations, rounds, cost = solve_with_gate(problem, v, params.gate_chi2, solver)
+    v, active, iterations, rounds, cost = solve_with_gate(problem, v, params.gate_chi2, solver, minimise)
     poses, lms = problem.split(v)
-    cov = laplace_landmarks(problem, v, active)
+    cov = landmark_covariances(problem, v, active)
     n_l = problem.n_landmark_sightings
     kept = np.bincount(problem.col_of[active[:n_l]], minlength=len(seen_all)) > 0
     N = streams[robots[0]].n_landmarks
@@ -525,8 +533,21 @@ def smooth_robots(
         measurements_rejected=int((~active[:n_l]).sum()),
         measurements_zero_weight=int(sum((~use[a]).sum() for a in robots)),
         robot_sightings_used=int(active[n_l:].sum()), robot_sightings_gated=int((~active[n_l:]).sum()),
-        robot_sightings_skipped=int(skipped), seconds=time.perf_counter() - started, notes=notes,
+        robot_sightings_skipped=int(skipped), seconds=time.perf_counter() - started, notes=notes, backend=backend,
     )
+
+
+def _backend(backend: str):
+    """``(minimise, landmark_covariances)`` of ``backend``: the package's (``None``: ``solve_with_gate``'s default,
+    :func:`laplace_landmarks`), or GTSAM's (:mod:`fastslam_edu.landmark.smoother_gtsam`)."""
+    if backend == "scipy":
+        return None, laplace_landmarks
+    if backend != "gtsam":
+        raise ValueError(f"smooth_robots: backend must be 'scipy' or 'gtsam', got {backend!r}")
+    from fastslam_edu.landmark import smoother_gtsam
+
+    smoother_gtsam.require_gtsam()
+    return smoother_gtsam.levenberg_marquardt, smoother_gtsam.landmark_covariances
 
 
 def _with_x0(stream: EventStream, x0) -> EventStream:

@@ -111,6 +111,8 @@ def factor_graph(problem, active: np.ndarray, huber: float | None = None):
     """The smoother's problem (``smoother._Problem``, calibration not estimated) as a ``gtsam.NonlinearFactorGraph``:
     prior, odometry factors, the ``active`` sightings (robust Huber at ``huber`` if given) and the landmark anchors
     at ``problem.anchor`` (see the module docstring for how each error relates to the package's)."""
+    if hasattr(problem, "prior_slot"):  # several robots: multi_robot._JointProblem
+        return robots_factor_graph(problem, active, huber)
     gtsam = require_gtsam()
     noise = gtsam.noiseModel
     graph = gtsam.NonlinearFactorGraph()
@@ -140,7 +142,7 @@ def factor_graph(problem, active: np.ndarray, huber: float | None = None):
     return graph
 
 
-def odometry_chain_factor(first: int, delta: np.ndarray, W: np.ndarray):
+def odometry_chain_factor(first: int, delta: np.ndarray, W: np.ndarray, slots=None):
     """The package's odometry factors between poses ``first`` … ``first + m`` as one ``gtsam.CustomFactor``: the
     stacked whitened errors :math:`W_k e_k`, :math:`e_k = (x_{k-1}^{-1} \\oplus x_k) - \\Delta_k` (heading wrapped;
     :func:`fastslam_edu.landmark.smoother.odometry_residuals`), ``delta`` (m, 3), whitening ``W`` (m, 3, 3) of
@@ -162,13 +164,17 @@ def odometry_chain_factor(first: int, delta: np.ndarray, W: np.ndarray):
     :data:`CHAIN_LENGTH` steps make 1/16 as many calls. Each chain's factor joins its m + 1 poses in one clique:
     (3m + 3)-dimensional dense blocks in the elimination (on a simulated log of 3349 keyframes, 11 iterations took 103 s
     one step per factor, 15 s at m = 8, 6 s at m = 16 or 32, 11 s at m = 64).
+
+    ``slots`` (m + 1,): the poses' variable numbers when they are not ``first`` … ``first + m`` (one robot's
+    keyframes among several robots', :func:`robots_factor_graph`).
     """
     gtsam = require_gtsam()
     from fastslam_edu.landmark.smoother import odometry_residuals
 
     delta, W = np.asarray(delta, dtype=float), np.asarray(W, dtype=float)
     m = len(delta)
-    keys = [pose_key(first + i) for i in range(m + 1)]
+    slots = first + np.arange(m + 1) if slots is None else np.asarray(slots)
+    keys = [pose_key(int(i)) for i in slots]
     rows = 3 * np.arange(m)
 
     def error(factor, values, jacobians):
@@ -256,3 +262,127 @@ def laplace(problem, v, active, with_poses=True):
         world = rotated_covariance(local, -poses[:, 2])
         std = np.sqrt(np.maximum(np.diagonal(world, axis1=1, axis2=2), 0.0))
     return std, cov_lm, np.zeros((0, 0))
+
+
+# --------------------------------------------------------------------------- several robots (multi_robot.smooth_robots)
+
+#: Robot-robot sightings per ``CustomFactor`` (:func:`robot_sighting_factor`): as for the odometry chains, a Python
+#: factor's call inside GTSAM's optimizer costs time in proportion to the number of variables, and the five robots of
+#: MR.CLAM Dataset 6 have 13 000 keyframes and 4000 mutual sightings.
+SIGHTING_GROUP = 16
+
+
+def robots_factor_graph(problem, active, huber: float | None = None):
+    """Several robots' problem (``multi_robot._JointProblem``) as a ``gtsam.NonlinearFactorGraph``: per robot the
+    factors of :func:`factor_graph` (its prior, its odometry chain, its ``active`` landmark sightings), then the
+    ``active`` robot-robot sightings in groups of :data:`SIGHTING_GROUP` (:func:`robot_sighting_factor`), then the
+    landmark anchors. ``active`` (n_l + n_r,): the landmark sightings, then the robot sightings."""
+    gtsam = require_gtsam()
+    noise = gtsam.noiseModel
+    graph = gtsam.NonlinearFactorGraph()
+    P0 = rotated_covariance(covariance_of_whitening(problem.W0), problem.x0[:, 2])
+    for slot, x0, P in zip(problem.prior_slot, np.asarray(problem.x0, dtype=float), P0):
+        graph.add(gtsam.PriorFactorPose2(pose_key(int(slot)), gtsam.Pose2(*x0), noise.Gaussian.Covariance(P)))
+    # each robot's odometry factors are a run of consecutive entries: x_a of one is x_b of the one before
+    starts = np.flatnonzero(np.r_[True, problem.odo_a[1:] != problem.odo_b[:-1]])
+    for lo, hi in zip(starts, np.r_[starts[1:], len(problem.odo_a)]):
+        for first in range(lo, hi, CHAIN_LENGTH):
+            f = np.arange(first, min(first + CHAIN_LENGTH, hi))
+            slots = np.r_[problem.odo_a[f], problem.odo_b[f[-1]]]
+            graph.add(odometry_chain_factor(0, problem.delta[f], problem.Wo[f], slots=slots))
+    n_l = problem.n_landmark_sightings
+    landmark, robot = active[:n_l], active[n_l:]
+    R = _SWAP @ covariance_of_whitening(problem.Wm[:n_l][landmark]) @ _SWAP  # R_i / β_i, (bearing, range)
+    for k, j, z, Ri in zip(problem.pose_of[landmark], problem.col_of[landmark], problem.z[:n_l][landmark], R):
+        model = noise.Gaussian.Covariance(Ri)
+        if huber is not None:
+            model = noise.Robust.Create(noise.mEstimator.Huber.Create(huber), model)
+        graph.add(gtsam.BearingRangeFactor2D(pose_key(int(k)), landmark_key(int(j)), gtsam.Rot2(z[1]), z[0], model))
+    ra, rb, da, db = problem.ra[robot], problem.rb[robot], problem.da[robot], problem.db[robot]
+    z, W = problem.z[n_l:][robot], problem.Wm[n_l:][robot]
+    order = np.argsort(np.minimum(ra, rb), kind="stable")  # close in time: a group's poses are neighbours
+    for first in range(0, len(order), SIGHTING_GROUP):
+        g = order[first:first + SIGHTING_GROUP]
+        graph.add(robot_sighting_factor(ra[g], rb[g], da[g], db[g], z[g], W[g], huber))
+    anchor = noise.Isotropic.Sigma(2, LANDMARK_ANCHOR_STD)
+    for j, a in enumerate(problem.anchor):
+        graph.add(gtsam.PriorFactorPoint2(landmark_key(j), np.asarray(a, dtype=float), anchor))
+    return graph
+
+
+def robot_sighting_factor(ra, rb, da, db, z, W, huber: float | None = None):
+    """Robot-robot sightings ``s`` = 1 … n as one ``gtsam.CustomFactor`` with the package's residual and Jacobians
+    (:meth:`fastslam_edu.landmark.multi_robot._JointProblem.sighting_errors`): robot a at keyframe slot ``ra[s]``
+    sees robot b at slot ``rb[s]``,
+
+    .. math::
+
+        r_s = W_s\\, e_s, \\qquad e_s = z_s \\ominus h(x_{a} \\oplus \\delta_{a},\\; (x_{b} \\oplus \\delta_{b})_{xy}),
+
+    ``da``, ``db`` (n, 3) the dead-reckoned motions from the keyframes to the sighting's time, ``z`` (n, 2) range
+    [m] and bearing [rad], ``W`` (n, 2, 2) :math:`\\sqrt{\\beta_s} R_s^{-1/2}`; a unit noise model, so its error is
+    :math:`\\tfrac12 \\sum_s \\|r_s\\|^2`, the package's. The Jacobians are the package's
+    (:math:`W\\,\\partial e/\\partial x` through :func:`~fastslam_edu.landmark.multi_robot.compose_jacobian`) times
+    :math:`\\mathrm{blockdiag}(R(\\theta), 1)`, GTSAM's perturbation :math:`x \\exp(\\delta)` in the world frame.
+
+    With ``huber`` (the first round's Huber loss at :math:`c`, per sighting as the package's), a sighting with
+    :math:`s = \\|r_s\\| > c` returns :math:`g(s)\\, r_s`, :math:`g(s) = \\sqrt{2cs - c^2}/s`, so that
+    :math:`\\tfrac12 \\|g r_s\\|^2 = \\rho(s) = cs - c^2/2`: the same cost as the package's (a ``noiseModel.Robust``
+    would apply the loss to the whole group's residual). Its Jacobian is
+    :math:`g J + g'(s)\\, r_s r_s^\\top J / s`, :math:`g'(s) = -c (s - c) / (s^2 \\sqrt{2cs - c^2})`.
+    """
+    gtsam = require_gtsam()
+    from fastslam_edu.landmark.multi_robot import compose, compose_jacobian
+    from fastslam_edu.landmark.smoother import measurement_residuals
+
+    slots, index = np.unique(np.r_[ra, rb], return_inverse=True)
+    n = len(ra)
+    ia, ib = index[:n], index[n:]
+    keys = [pose_key(int(s)) for s in slots]
+    da, db, z, W = (np.asarray(a, dtype=float) for a in (da, db, z, W))
+
+    def error(factor, values, jacobians):
+        x = np.array([_pose_array(values.atPose2(key)) for key in keys])
+        xa, xb = x[ia], x[ib]
+        e, Jx, Jm = measurement_residuals(compose(xa, da), compose(xb, db)[:, :2], z)
+        r = np.einsum("nij,nj->ni", W, e)
+        if jacobians is None and huber is None:
+            return r.ravel()
+        c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
+        T = np.zeros((len(x), 3, 3))  # blockdiag(R(θ), 1): GTSAM's perturbation in the world frame
+        T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1], T[:, 2, 2] = c, -s, s, c, 1.0
+        Ja = W @ Jx @ compose_jacobian(xa, da) @ T[ia]  # (n, 2, 3)
+        Jb = W @ Jm @ compose_jacobian(xb, db)[:, :2, :] @ T[ib]
+        if huber is not None:
+            r, Ja, Jb = _huber_rows(r, Ja, Jb, huber)
+        if jacobians is not None:
+            for p in range(len(keys)):
+                J = np.zeros((n, 2, 3))
+                J[ia == p] += Ja[ia == p]
+                J[ib == p] += Jb[ib == p]
+                jacobians[p] = J.reshape(2 * n, 3)
+        return r.ravel()
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2 * n), keys, error)
+
+
+def _huber_rows(r, Ja, Jb, c: float):
+    """Each 2-row residual ``r`` (n, 2) with :math:`\\|r\\| > c` scaled by :math:`g = \\sqrt{2cs - c^2}/s`
+    (:func:`robot_sighting_factor`), and its Jacobians ``Ja``, ``Jb`` (n, 2, 3) by the chain rule."""
+    s = np.sqrt(np.sum(r * r, axis=1))
+    out = s > c
+    if not out.any():
+        return r, Ja, Jb
+    so = s[out]
+    root = np.sqrt(2 * c * so - c * c)
+    g, dg = np.ones(len(s)), np.zeros(len(s))
+    g[out], dg[out] = root / so, -c * (so - c) / (so * so * root)
+    outer = (dg / np.maximum(s, 1e-300))[:, None, None] * r[:, :, None] * r[:, None, :]  # g'(s) r rᵀ / s
+    scale = g[:, None, None] * np.eye(2) + outer
+    return g[:, None] * r, scale @ Ja, scale @ Jb
+
+
+def landmark_covariances(problem, v, active) -> np.ndarray:
+    """The landmarks' Laplace covariances (L, 2, 2) [m²] from ``gtsam.Marginals`` at ``v`` (:func:`laplace`, without
+    the poses'): GTSAM's counterpart of :func:`fastslam_edu.landmark.multi_robot.laplace_landmarks`."""
+    return laplace(problem, v, active, with_poses=False)[1]
