@@ -267,8 +267,7 @@ def cmd_run_unknown(args) -> int:
     from fastslam_edu.app.experiment import run_mrclam_unknown
     from fastslam_edu.landmark.association import AssociationParams
 
-    given = [name for name, used in (("--mode", args.mode != "slam"), ("--smooth", args.smooth),
-                                     ("--rate 1hz", args.rate != "full")) if used]
+    given = [name for name, used in (("--mode", args.mode != "slam"), ("--rate 1hz", args.rate != "full")) if used]
     if given:
         raise ValueError(f"{', '.join(given)}: not available with --correspondences unknown")
     defaults = AssociationParams()
@@ -279,6 +278,12 @@ def cmd_run_unknown(args) -> int:
     result, summary, ctx = run_mrclam_unknown(args.data, args.robot, params, args.seed, rate=args.rate, x0=args.x0,
                                               groundtruth_file=args.groundtruth, audit=not args.no_audit)
     summary["filter"] = "fastslam"
+    if args.smooth:  # the associations re-decided with the whole log (fastslam_edu.landmark.smoother_association)
+        from fastslam_edu.landmark import smoother_association
+
+        smoothed = smoother_association.smooth_association(ctx["stream"], result)
+        summary["smoother"] = smoother_association.summarize(smoothed, ctx["stream"], ctx["true_index"],
+                                                             ctx["dataset"], ctx["log"])
     _report(summary, UNKNOWN_KEYS, args.json)
     if args.plot:
         _unknown_figure(result, ctx, f"{args.data.name} robot {args.robot}, unknown correspondences, seed {args.seed}",

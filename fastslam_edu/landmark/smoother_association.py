@@ -838,3 +838,32 @@ __all__ = ["OUTLIER", "SmootherAssociationParams", "SmootherAssociationResult", 
            "compact", "solve_labelled", "two_clusters", "split_moves", "merge_moves", "prune_landmarks",
            "maximum_clique", "loop_candidates", "consistent_pairs", "loop_closures", "alternate",
            "starts_from_filter", "smooth_association"]
+
+
+def summarize(result: SmootherAssociationResult, stream: EventStream, true_index, dataset, log) -> dict:
+    """The JSON ``smoother`` part of ``fastslam-edu run --correspondences unknown --smooth``: the association and map
+    keys of the filter's summary (:func:`fastslam_edu.app.experiment.summarize_unknown`), computed by the same
+    :mod:`fastslam_edu.evaluation.association` functions, and the smoother's own counts."""
+    from fastslam_edu.app.experiment import score_estimate
+    from fastslam_edu.datasets.events import groundtruth_at
+    from fastslam_edu.evaluation import association as score
+
+    truth = dataset.landmark_positions
+    start = None
+    if log.groundtruth is not None:
+        gt = log.groundtruth["time"].to_numpy()
+        t = stream.t
+        inside = (t >= gt[0]) & (t <= gt[-1])
+        start = score.path_alignment(result.pose_mean[inside, :2], groundtruth_at(log, t[inside])[:, :2])
+    match = score.match_landmarks(result.landmarks, truth, start=start)
+    landmarks, observed = score.in_survey_order(result.landmarks, match, len(truth))
+    out = {"association_accuracy": score.association_accuracy(result.history, true_index, result.landmark_ident, match),
+           "association_breakdown": score.association_breakdown(result.history, true_index, result.landmark_ident,
+                                                                match),
+           "landmarks_in_map": score.landmarks_in_map(result.landmarks),
+           "landmarks_spurious": int(np.sum(match < 0)), "outliers": result.outliers, "cost": result.cost,
+           "restart_costs": [float(c) for c in result.costs], "rounds": result.rounds,
+           "loop_closures": result.loop_closures, "smoother_seconds": round(result.seconds, 4),
+           "seconds": round(result.seconds, 4)}
+    out.update(score_estimate(stream.t, result.pose_mean, landmarks, observed, dataset.landmark_subjects, dataset, log))
+    return out
