@@ -279,10 +279,11 @@ def cmd_run_unknown(args) -> int:
                                               groundtruth_file=args.groundtruth, audit=not args.no_audit)
     summary["filter"] = "fastslam"
     if args.smooth:  # the associations re-decided with the whole log (fastslam_edu.landmark.smoother_association)
-        from fastslam_edu.landmark import smoother_association
+        from fastslam_edu.app.experiment import summarize_smoother_association
+        from fastslam_edu.landmark.smoother_association import smooth_association
 
-        smoothed = smoother_association.smooth_association(ctx["stream"], result)
-        summary["smoother"] = smoother_association.summarize(smoothed, ctx["stream"], ctx["true_index"],
+        smoothed = smooth_association(ctx["stream"], result)
+        summary["smoother"] = summarize_smoother_association(smoothed, ctx["stream"], ctx["true_index"],
                                                              ctx["dataset"], ctx["log"])
     _report(summary, UNKNOWN_KEYS, args.json)
     if args.plot:

@@ -21,15 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
+from fastslam_edu.evaluation import association as score
 from fastslam_edu.evaluation import metrics
 from fastslam_edu.evaluation.audit import apply_landmark_audit
 from fastslam_edu.datasets.events import event_stream, groundtruth_at
-from fastslam_edu.datasets.log import Dataset, RobotLog
+from fastslam_edu.datasets.log import Dataset, EventStream, RobotLog
 from fastslam_edu.datasets.mrclam import groundtruth_files, read_dataset, read_groundtruth_csv, read_groundtruth_dat, robots_in
 from fastslam_edu.landmark.ekf_slam import EKFSLAMParams, EKFSLAMResult, run_ekf_slam
 from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, run_fastslam
 from fastslam_edu.landmark.initial_pose import initial_pose_from_landmarks
 from fastslam_edu.landmark.smoother import SmootherResult
+from fastslam_edu.landmark.smoother_association import SmootherAssociationResult
 
 
 def load_mrclam(path, robot: int, *, groundtruth_file=None, audit: bool = True):
@@ -262,7 +264,8 @@ def summarize_ekf(result: EKFSLAMResult, dataset: Dataset, log: RobotLog) -> dic
     observed landmarks of :math:`\\sqrt{\\mathrm{tr}\\,\\Sigma_k}`, the standard deviation the filter reports.
     """
     counts = {"steps": int(len(result.t)), "measurements_used": result.measurements_used,
-              "measurements_rejected": result.measurements_rejected, "filter_seconds": round(result.filter_seconds, 4)}
+              "measurements_rejected": result.measurements_rejected, "filter_seconds": round(result.filter_seconds, 4),
+              "compile_seconds": round(result.compile_seconds, 4)}
     out = _scored(counts, result, result.pose_mean, result.landmarks_mean, dataset, log)
     out["landmark_std_mean_m"] = landmark_std_mean(result.landmarks_cov, result.observed)
     return out
@@ -350,8 +353,6 @@ def summarize_unknown(result, stream, true_index, dataset: Dataset, log: RobotLo
     the motion that registers the map on the survey, :func:`fastslam_edu.evaluation.registration.register`);
     the landmark errors are those of the matched landmarks.
     """
-    from fastslam_edu.evaluation import association as score
-
     truth = dataset.landmark_positions
     start = None
     if log.groundtruth is not None:  # the map is matched in the frame that best fits the path to the groundtruth
@@ -422,3 +423,29 @@ def run_mrclam_unknown(path, robot: int, params=None, seed: int = 0, *, rate: st
                    x0=[float(v) for v in stream.x0])
     return result, summary, {"dataset": dataset, "log": log, "stream": stream, "notes": notes,
                              "true_index": true_index}
+
+
+def summarize_smoother_association(result: SmootherAssociationResult, stream: EventStream, true_index,
+                                   dataset: Dataset, log: RobotLog) -> dict:
+    """The JSON ``smoother`` part of ``fastslam-edu run --correspondences unknown --smooth``: the association and map
+    keys of the filter's summary (:func:`summarize_unknown`), computed by the same
+    :mod:`fastslam_edu.evaluation.association` functions, and the smoother's own counts."""
+    truth = dataset.landmark_positions
+    start = None
+    if log.groundtruth is not None:
+        gt = log.groundtruth["time"].to_numpy()
+        t = stream.t
+        inside = (t >= gt[0]) & (t <= gt[-1])
+        start = score.path_alignment(result.pose_mean[inside, :2], groundtruth_at(log, t[inside])[:, :2])
+    match = score.match_landmarks(result.landmarks, truth, start=start)
+    landmarks, observed = score.in_survey_order(result.landmarks, match, len(truth))
+    out = {"association_accuracy": score.association_accuracy(result.history, true_index, result.landmark_ident, match),
+           "association_breakdown": score.association_breakdown(result.history, true_index, result.landmark_ident,
+                                                                match),
+           "landmarks_in_map": score.landmarks_in_map(result.landmarks),
+           "landmarks_spurious": int(np.sum(match < 0)), "outliers": result.outliers, "cost": result.cost,
+           "restart_costs": [float(c) for c in result.costs], "rounds": result.rounds,
+           "loop_closures": result.loop_closures, "smoother_seconds": round(result.seconds, 4),
+           "seconds": round(result.seconds, 4)}
+    out.update(score_estimate(stream.t, result.pose_mean, landmarks, observed, dataset.landmark_subjects, dataset, log))
+    return out

@@ -74,6 +74,7 @@ from fastslam_edu.core.measurement import (innovation, jacobian_landmark, jacobi
 from fastslam_edu.core.params import Params
 from fastslam_edu.core.se2 import compose, relative
 from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.landmark.association import AssociationParams
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 from fastslam_edu.landmark.smoother import (BEST_ESTIMATE, PRIOR_STD, SolverSettings, build_problem, dead_reckoning,
                                             keyframe_steps, sighting_weights, solve_with_gate)
@@ -199,8 +200,6 @@ def _prepare(stream: EventStream, params: FastSLAMParams, x0, sensor=None) -> _L
     """The :class:`_Log` of ``stream``; ``sensor``: the filter's
     :class:`~fastslam_edu.landmark.association.AssociationParams` (its camera's field of view and range, :math:`p_D`,
     :math:`p_F`; default its defaults)."""
-    from fastslam_edu.landmark.association import AssociationParams
-
     sensor = AssociationParams() if sensor is None else sensor
     pd_, pf = sensor.detection_probability, sensor.clutter_probability
     camera = (float(sensor.fov), float(sensor.min_range), float(sensor.max_range), math.log(pd_ / pf),
@@ -838,32 +837,3 @@ __all__ = ["OUTLIER", "SmootherAssociationParams", "SmootherAssociationResult", 
            "compact", "solve_labelled", "two_clusters", "split_moves", "merge_moves", "prune_landmarks",
            "maximum_clique", "loop_candidates", "consistent_pairs", "loop_closures", "alternate",
            "starts_from_filter", "smooth_association"]
-
-
-def summarize(result: SmootherAssociationResult, stream: EventStream, true_index, dataset, log) -> dict:
-    """The JSON ``smoother`` part of ``fastslam-edu run --correspondences unknown --smooth``: the association and map
-    keys of the filter's summary (:func:`fastslam_edu.app.experiment.summarize_unknown`), computed by the same
-    :mod:`fastslam_edu.evaluation.association` functions, and the smoother's own counts."""
-    from fastslam_edu.app.experiment import score_estimate
-    from fastslam_edu.datasets.events import groundtruth_at
-    from fastslam_edu.evaluation import association as score
-
-    truth = dataset.landmark_positions
-    start = None
-    if log.groundtruth is not None:
-        gt = log.groundtruth["time"].to_numpy()
-        t = stream.t
-        inside = (t >= gt[0]) & (t <= gt[-1])
-        start = score.path_alignment(result.pose_mean[inside, :2], groundtruth_at(log, t[inside])[:, :2])
-    match = score.match_landmarks(result.landmarks, truth, start=start)
-    landmarks, observed = score.in_survey_order(result.landmarks, match, len(truth))
-    out = {"association_accuracy": score.association_accuracy(result.history, true_index, result.landmark_ident, match),
-           "association_breakdown": score.association_breakdown(result.history, true_index, result.landmark_ident,
-                                                                match),
-           "landmarks_in_map": score.landmarks_in_map(result.landmarks),
-           "landmarks_spurious": int(np.sum(match < 0)), "outliers": result.outliers, "cost": result.cost,
-           "restart_costs": [float(c) for c in result.costs], "rounds": result.rounds,
-           "loop_closures": result.loop_closures, "smoother_seconds": round(result.seconds, 4),
-           "seconds": round(result.seconds, 4)}
-    out.update(score_estimate(stream.t, result.pose_mean, landmarks, observed, dataset.landmark_subjects, dataset, log))
-    return out
