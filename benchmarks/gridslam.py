@@ -41,7 +41,7 @@ from fastslam_edu.datasets.laser import read_carmen, read_intel_json, read_relat
 from fastslam_edu.grid.gridslam import GridSLAMParams, run_grid_slam  # noqa: E402
 from grid_loop import run_grid_slam_loop  # noqa: E402
 from fastslam_edu.evaluation.relations import reference_errors, score_trajectory  # noqa: E402
-from fastslam_edu.datasets.sim import simulate_laser_world  # noqa: E402
+from fastslam_edu.datasets.sim_laser import simulate_laser_world  # noqa: E402
 
 VARIANTS = {  # name -> GridSLAMParams changes (M set separately)
     "write-up rule (0/1 map, exp(c), resample always)": ("writeup", {}),

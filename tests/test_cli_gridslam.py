@@ -9,7 +9,7 @@ import pytest
 
 from fastslam_edu.app.cli import main
 from fastslam_edu.core.se2 import relative
-from fastslam_edu.datasets.sim import simulate_laser_world
+from fastslam_edu.datasets.sim_laser import simulate_laser_world
 
 N_SCANS = 120
 NO_RETURN = 81.83

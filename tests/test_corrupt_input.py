@@ -24,14 +24,8 @@ import pytest
 import scipy.io
 
 from fastslam_edu.app.cli import main
-from fastslam_edu.datasets.laser import (
-    read_carmen,
-    read_intel_json,
-    read_relations,
-    read_thor_joints,
-    read_thor_lidar,
-    write_thor_lidar,
-)
+from fastslam_edu.datasets.laser import read_carmen, read_intel_json, read_relations
+from fastslam_edu.datasets.thor_lidar import read_thor_joints, read_thor_lidar, write_thor_lidar
 
 N_LINES = 400
 

@@ -16,7 +16,7 @@ from fastslam_edu.grid.gridslam import GridSLAMParams, ancestral_path, run_grid_
 from fastslam_edu.grid.motion import increment_noise_std, sample_motion
 from fastslam_edu.grid.scan_matching import correlation, correlation_kernel, endpoint_cells, hit_field, scan_match
 from fastslam_edu.evaluation.relations import reference_errors
-from fastslam_edu.datasets.sim import simulate_laser_world
+from fastslam_edu.datasets.sim_laser import simulate_laser_world
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The simulated laser world (fastslam_edu.datasets.sim.simulate_laser_world): ray casting by hand, noise statistics."""
+"""The simulated laser world (fastslam_edu.datasets.sim_laser.simulate_laser_world): ray casting by hand, noise statistics."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from fastslam_edu.datasets.laser import odometry_increments
 from fastslam_edu.core.se2 import path_increments
-from fastslam_edu.datasets.sim import floor_plan, ray_cast, simulate_laser_world
+from fastslam_edu.datasets.sim_laser import floor_plan, ray_cast, simulate_laser_world
 
 BOX = np.array([  # the square [0, 4] × [0, 4]
     [[0, 0], [4, 0]], [[4, 0], [4, 4]], [[4, 4], [0, 4]], [[0, 4], [0, 0]],

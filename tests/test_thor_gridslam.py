@@ -19,7 +19,7 @@ import pytest
 import scipy.io
 
 from fastslam_edu.app.cli import main
-from fastslam_edu.datasets.laser import ThorLidar, read_thor_joints, read_thor_lidar, thor_angles
+from fastslam_edu.datasets.thor_lidar import ThorLidar, read_thor_joints, read_thor_lidar, thor_angles
 from fastslam_edu.grid.gridslam import GridSLAMParams, run_grid_slam
 from fastslam_edu.datasets.thor_geometry import lidar_points_world
 from fastslam_edu.grid.thor import PLANAR_BEARING_STEP, planar_laser_log

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from fastslam_edu.datasets.laser import read_thor_lidar
+from fastslam_edu.datasets.thor_lidar import read_thor_lidar
 from fastslam_edu.grid.occupancy import OccupancyGrid
 from fastslam_edu.core.se2 import path_increments
 from fastslam_edu.datasets.thor_geometry import joints_at, lidar_points_world

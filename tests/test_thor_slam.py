@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from fastslam_edu.datasets.laser import read_thor_lidar
+from fastslam_edu.datasets.thor_lidar import read_thor_lidar
 from fastslam_edu.datasets.thor_sim import (FLOOR, FloorPlan, ThorSimConfig, default_floor_plan, simulate_thor,
                                            write_sequence)
 from fastslam_edu.grid.gridslam import GridSLAMParams

@@ -165,7 +165,7 @@ def _read_laser(path: Path, fmt: str, what: str, joints: Path | None = None):
 
 def _read_thor_planar(path: Path, joints: Path | None, what: str):
     """A THOR LiDAR log projected to the body's horizontal plane (:func:`fastslam_edu.grid.thor.planar_laser_log`)."""
-    from fastslam_edu.datasets.laser import read_thor_joints, read_thor_lidar
+    from fastslam_edu.datasets.thor_lidar import read_thor_joints, read_thor_lidar
     from fastslam_edu.grid.thor import planar_laser_log
 
     if joints is None:

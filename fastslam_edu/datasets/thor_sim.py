@@ -34,8 +34,8 @@ What is simulated
   ``delta_pose``.
 
 :func:`write_sequence` writes it with
-:func:`fastslam_edu.datasets.laser.write_thor_lidar` in either THOR variant, so
-that :func:`fastslam_edu.datasets.laser.read_thor_lidar` reads it back like a
+:func:`fastslam_edu.datasets.thor_lidar.write_thor_lidar` in either THOR variant, so
+that :func:`fastslam_edu.datasets.thor_lidar.read_thor_lidar` reads it back like a
 real file. All randomness comes from one ``numpy.random.Generator``: the
 odometry noise is drawn first, then the range noise scan by scan, so the same
 seed gives the same sequence.
@@ -52,7 +52,7 @@ import numpy as np
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.floor_plan import (  # noqa: F401 (the world, re-exported for chapter 18)
     DEFAULT_WAYPOINTS, FLOOR, NO_HIT, WALL, FloorPlan, cast_rays, default_floor_plan)
-from fastslam_edu.datasets.laser import read_thor_joints, thor_angles, write_thor_lidar
+from fastslam_edu.datasets.thor_lidar import read_thor_joints, thor_angles, write_thor_lidar
 from fastslam_edu.core.se2 import compose_increments, path_increments
 from fastslam_edu.datasets.thor_geometry import MAX_RANGE, beam_directions_world, nearest_sample
 
@@ -436,7 +436,7 @@ def write_sequence(seq: ThorSequence, path, *, variant: int = 1) -> Path:
     ``res`` = 0.25°, ``rpy`` = zeros (the simulated body stays upright),
     ``scan``. Variant 2 (UCSD 2020): ``t``, ``scan``, ``delta_pose`` =
     :attr:`ThorSequence.delta_pose`. Read it back with
-    :func:`fastslam_edu.datasets.laser.read_thor_lidar`.
+    :func:`fastslam_edu.datasets.thor_lidar.read_thor_lidar`.
 
     Returns
     -------
@@ -458,7 +458,7 @@ def real_thor_joints(*, download: bool = False) -> tuple[np.ndarray, np.ndarray,
 
     Read from ``<data_root>/thor/train_joint0.mat`` (the registry's ``thor`` dataset,
     :func:`fastslam_edu.datasets.dataset_path`) with
-    :func:`fastslam_edu.datasets.laser.read_thor_joints`. With ``download=True`` a
+    :func:`fastslam_edu.datasets.thor_lidar.read_thor_joints`. With ``download=True`` a
     missing or altered file is fetched from its pinned source and checked first.
     """
     from fastslam_edu.datasets import dataset_path

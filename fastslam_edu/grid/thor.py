@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fastslam_edu.datasets import thor_geometry
-from fastslam_edu.datasets.laser import LaserLog, ThorLidar
+from fastslam_edu.datasets.laser import LaserLog
+from fastslam_edu.datasets.thor_lidar import ThorLidar
 from fastslam_edu.datasets.thor_geometry import (  # noqa: F401 (the geometry, re-exported for the chapters)
     BODY_HEIGHT, FLOOR_Z, LIDAR_ABOVE_HEAD, LIDAR_HEIGHT, MAX_RANGE, MIN_RANGE, beam_directions_world,
     beam_points_lidar, body_to_world, homogeneous, joints_at, lidar_points_world, lidar_to_body, lidar_to_world,
@@ -182,9 +183,9 @@ def planar_laser_log(
 
     Parameters
     ----------
-    lidar : ThorLidar (:func:`fastslam_edu.datasets.laser.read_thor_lidar`)
+    lidar : ThorLidar (:func:`fastslam_edu.datasets.thor_lidar.read_thor_lidar`)
     t_joints, neck, head : array_like, shape (n,)
-        The joint log (:func:`fastslam_edu.datasets.laser.read_thor_joints`).
+        The joint log (:func:`fastslam_edu.datasets.thor_lidar.read_thor_joints`).
     max_gap : float
         Largest allowed time [s] between a scan and its joint sample.
     band : (float, float)

@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fastslam_edu.datasets.laser import LaserLog, ThorLidar
+from fastslam_edu.datasets.laser import LaserLog
+from fastslam_edu.datasets.thor_lidar import ThorLidar
 from fastslam_edu.datasets.floor_plan import FloorPlan
 from fastslam_edu.grid.gridslam import GridSLAMParams, GridSLAMResult, run_grid_slam
 from fastslam_edu.grid.occupancy import OccupancyGrid
@@ -75,7 +76,7 @@ def planar_scans(
     Parameters
     ----------
     lidar : ThorLidar
-        From :func:`fastslam_edu.datasets.laser.read_thor_lidar` (either variant).
+        From :func:`fastslam_edu.datasets.thor_lidar.read_thor_lidar` (either variant).
     t_joints, neck, head : array_like, shape (n,)
         The joint log.
     floor_filter : bool
