@@ -22,7 +22,7 @@ groundtruth; :func:`read_groundtruth` then falls back to the 1 Hz averages in
 ``groundtruth_1hz/`` (CSV, header ``Time,X,Y,Orientation``) and records which
 one it used in ``groundtruth.attrs["rate"]`` (``"full"`` or ``"1hz"``).
 
-Errors in a file are reported as ``ValueError("<file>, line <n>: ...")``;
+Errors in a file are reported as ``ValueError("<file>, line <n>: ...")`` (:mod:`.numeric_table`);
 a missing file as ``FileNotFoundError`` naming the path. In the real data
 (Datasets 1 and 6) time never goes backwards within a file (equal consecutive
 times do occur, e.g. several sightings in one camera frame), so a backwards
@@ -32,15 +32,15 @@ step is treated as corruption and raises.
 from __future__ import annotations
 
 import re
-import warnings
 from collections import Counter
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from fastslam_edu.datasets.log import Dataset, RobotLog
+from fastslam_edu.datasets.numeric_table import line_of_row, read_numeric_table
 
 HEADER_LINES = 4
 """Number of ``#`` header lines at the top of every ``.dat`` file."""
@@ -81,136 +81,6 @@ _HEADERS = {
 
 
 # --------------------------------------------------------------------------
-# the generic numeric-table reader
-# --------------------------------------------------------------------------
-
-
-def _data_lines(path: Path, delimiter: str | None, skip_header: int) -> Iterator[tuple[int, list[str]]]:
-    """Yield ``(line number, fields)`` of every data line, the way np.loadtxt sees them.
-
-    Line numbers count from 1; the first ``skip_header`` lines, text after
-    ``#`` and blank lines are skipped.
-    """
-    with open(path, encoding="utf-8", errors="replace") as f:
-        for lineno, line in enumerate(f, start=1):
-            if lineno <= skip_header:
-                continue
-            text = line.split("#", 1)[0].strip()
-            if not text:
-                continue
-            fields = text.split(delimiter) if delimiter else text.split()
-            yield lineno, [s.strip() for s in fields]
-
-
-def _raise_at_bad_line(path: Path, columns: Sequence[str], delimiter: str | None,
-                       skip_header: int, cause: Exception) -> None:
-    """Scan ``path`` line by line and raise a ValueError naming the first bad line."""
-    ncols = len(columns)
-    for lineno, fields in _data_lines(path, delimiter, skip_header):
-        if len(fields) != ncols:
-            raise ValueError(
-                f"{path}, line {lineno}: expected {ncols} columns ({', '.join(columns)}), "
-                f"found {len(fields)}: {' '.join(fields)!r}"
-            ) from None
-        for name, s in zip(columns, fields):
-            try:
-                float(s)
-            except ValueError:
-                raise ValueError(
-                    f"{path}, line {lineno}: {name} field {s!r} is not a number"
-                ) from None
-    raise ValueError(f"{path}: could not be parsed ({cause})") from cause
-
-
-def _line_number(path: Path, row: int, delimiter: str | None, skip_header: int) -> int:
-    """File line number (from 1) of data row ``row`` (from 0)."""
-    for i, (lineno, _) in enumerate(_data_lines(path, delimiter, skip_header)):
-        if i == row:
-            return lineno
-    raise IndexError(row)  # pragma: no cover - row comes from the parsed array
-
-
-def read_numeric_table(path: str | Path, columns: Sequence[str], *, delimiter: str | None = None,
-                       skip_header: int = 0, time_column: bool = False,
-                       integer_columns: Iterable[str] = ()) -> np.ndarray:
-    """Read a text table of numbers, checking every row.
-
-    Fast path: :func:`numpy.loadtxt` (``#`` starts a comment, blank lines are
-    skipped). When it fails, or a check below fails, the file is scanned line
-    by line to name the offending line in the error.
-
-    Parameters
-    ----------
-    path : str or Path
-    columns : sequence of str
-        Expected column names (their count is checked; names go into messages).
-    delimiter : str or None
-        None for any whitespace (the ``.dat`` files), ``","`` for CSV.
-    skip_header : int
-        Lines to skip before parsing (a CSV header line; the ``.dat`` headers
-        are comments anyway).
-    time_column : bool
-        If True, column 0 is a time that must be non-decreasing.
-    integer_columns : iterable of str
-        Columns whose values must be whole numbers (subject, barcode).
-
-    Returns
-    -------
-    ndarray, shape (n_rows, len(columns)), float
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``path`` does not exist.
-    ValueError
-        ``"<path>, line <n>: ..."`` for a wrong column count, a non-numeric,
-        NaN or infinite field, a non-integer id, or a time smaller than the
-        previous row's; ``"<path>: no data rows ..."`` for an empty table.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"MR.CLAM file not found: {path}")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # loadtxt warns on an empty file; we raise below
-            table = np.loadtxt(path, comments="#", delimiter=delimiter, skiprows=skip_header,
-                               ndmin=2, dtype=float, encoding="utf-8")
-    except ValueError as exc:  # wrong column count, text in a number field, bad encoding
-        _raise_at_bad_line(path, columns, delimiter, skip_header, exc)
-    if table.shape[0] == 0:
-        raise ValueError(f"{path}: no data rows (every line is a header, comment or blank)")
-
-    def line(row: int) -> int:
-        return _line_number(path, row, delimiter, skip_header)
-
-    if table.shape[1] != len(columns):
-        raise ValueError(
-            f"{path}, line {line(0)}: expected {len(columns)} columns ({', '.join(columns)}), "
-            f"found {table.shape[1]}"
-        )
-    bad = np.flatnonzero(~np.isfinite(table).all(axis=1))
-    if bad.size:
-        r = int(bad[0])
-        c = int(np.flatnonzero(~np.isfinite(table[r]))[0])
-        raise ValueError(f"{path}, line {line(r)}: {columns[c]} is {table[r, c]} (NaN and inf are not allowed)")
-    for name in integer_columns:
-        c = list(columns).index(name)
-        bad = np.flatnonzero(table[:, c] != np.round(table[:, c]))
-        if bad.size:
-            r = int(bad[0])
-            raise ValueError(f"{path}, line {line(r)}: {name} {table[r, c]} is not a whole number")
-    if time_column:
-        back = np.flatnonzero(np.diff(table[:, 0]) < 0)
-        if back.size:
-            r = int(back[0]) + 1
-            raise ValueError(
-                f"{path}, line {line(r)}: time {float(table[r, 0])!r} s goes backwards "
-                f"(line {line(r - 1)} has {float(table[r - 1, 0])!r} s); the file must be in time order"
-            )
-    return table
-
-
-# --------------------------------------------------------------------------
 # per-file readers
 # --------------------------------------------------------------------------
 
@@ -220,7 +90,7 @@ def _check_unique(path: Path, values: np.ndarray, what: str) -> None:
     dup = seen[counts > 1]
     if dup.size:
         rows = np.flatnonzero(values == dup[0])
-        lines = [_line_number(path, int(r), None, 0) for r in rows[:2]]
+        lines = [line_of_row(path, int(r), None, 0) for r in rows[:2]]
         raise ValueError(f"{path}, line {lines[1]}: {what} {int(dup[0])} repeats line {lines[0]}")
 
 
@@ -666,7 +536,6 @@ __all__ = [
     "read_groundtruth_dat",
     "read_landmark_groundtruth",
     "read_measurements",
-    "read_numeric_table",
     "read_odometry",
     "read_robot",
     "robot_sightings",
