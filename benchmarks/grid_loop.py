@@ -2,7 +2,7 @@
 
 Read next to the grid-PF write-up: for each particle, draw three normals and compose; for each beam,
 compute the endpoint with ``math.cos`` and look its cell up; map updates cast each beam with
-:func:`fastslam_edu.grid.occupancy.bresenham`; resampling is the write-up's roulette loop with one uniform
+:func:`fastslam_edu.grid.rays.bresenham`; resampling is the write-up's roulette loop with one uniform
 ``r ~ U(0, 1/M)``. It consumes the same random numbers in the same order as the vectorised filter, so the
 same seed gives the same result: the tests check the package against it, and ``benchmarks/gridslam.py``
 times the two side by side. Only the systematic resampler, and no scan matching.
@@ -21,7 +21,8 @@ from fastslam_edu.grid.gridslam import (GridSLAMParams, GridSLAMResult, ancestra
                                         scan_beams)
 from fastslam_edu.grid.motion import increment_noise_std
 from fastslam_edu.grid.scan_matching import correlation_kernel
-from fastslam_edu.grid.occupancy import OccupancyGrid, bresenham
+from fastslam_edu.grid.occupancy import OccupancyGrid
+from fastslam_edu.grid.rays import bresenham
 
 __all__ = ["run_grid_slam_loop"]
 

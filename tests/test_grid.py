@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from fastslam_edu.grid.occupancy import OccupancyGrid, bresenham, map_correlation, ray_cells, scan_endpoints
+from fastslam_edu.grid.occupancy import OccupancyGrid, map_correlation, scan_endpoints
+from fastslam_edu.grid.rays import bresenham, ray_cells
 
 L_OCC = math.log(0.7 / 0.3)
 L_FREE = math.log(0.4 / 0.6)

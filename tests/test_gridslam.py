@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from fastslam_edu.grid.occupancy import (OccupancyGrid, bresenham, map_correlation, ray_cells_batch, scan_endpoints,
-                                         update_maps)
+from fastslam_edu.grid.occupancy import OccupancyGrid, map_correlation, scan_endpoints, update_maps
+from fastslam_edu.grid.rays import bresenham, ray_cells_batch
 from grid_loop import run_grid_slam_loop  # benchmarks/grid_loop.py, the loop reference
 from fastslam_edu.grid.gridslam import GridSLAMParams, ancestral_path, run_grid_slam
 from fastslam_edu.grid.motion import increment_noise_std, sample_motion

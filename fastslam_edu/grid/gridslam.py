@@ -66,7 +66,8 @@ import numpy as np
 from scipy.special import logit
 
 from fastslam_edu.datasets.laser import LaserLog, odometry_increments
-from fastslam_edu.grid.occupancy import OccupancyGrid, ray_cells_batch, scan_endpoints, update_maps
+from fastslam_edu.grid.occupancy import OccupancyGrid, scan_endpoints, update_maps
+from fastslam_edu.grid.rays import ray_cells_batch
 from fastslam_edu.core.checks import finite_array
 from fastslam_edu.core.params import Params
 from fastslam_edu.core.resampling import get_resampler
