@@ -5,7 +5,7 @@ One update = one sighting ``z = (r, φ)`` of one landmark, in a map of K landmar
 * **EKF-SLAM** (:func:`fastslam_edu.landmark.ekf_slam.update`): the joint covariance
   :math:`\\Sigma` is (3 + 2K)², and the Joseph-form update rewrites every entry — :math:`O(K^2)`
   time and memory traffic, :math:`8 (3+2K)^2` bytes held;
-* **FastSLAM, arrays** (:func:`fastslam_edu.landmark.fastslam.update_with_measurements`, M = 100):
+* **FastSLAM, arrays** (:func:`fastslam_edu.landmark.particle_set.update_with_measurements`, M = 100):
   one 2×2 EKF per particle, :math:`O(M)` whatever K. FastSLAM's K enters at resampling, which
   copies every particle's map (:meth:`ParticleSet.select`, :math:`O(MK)`), so the table also gives
   **update + resampling** (the step of ``benchmarks/landmark_tree.py``);
@@ -47,7 +47,7 @@ from machine import machine_info, machine_line  # noqa: E402
 from fastslam_edu.core.measurement import range_bearing  # noqa: E402
 from fastslam_edu.core.resampling import systematic  # noqa: E402
 from fastslam_edu.landmark.ekf_slam import EKFSLAMState, landmark_slice, update  # noqa: E402
-from fastslam_edu.landmark.fastslam import ParticleSet, update_with_measurements  # noqa: E402
+from fastslam_edu.landmark.particle_set import ParticleSet, update_with_measurements  # noqa: E402
 from fastslam_edu.landmark.fastslam_tree import TreeParticleSet  # noqa: E402
 from fastslam_edu.landmark.tree import LandmarkTree  # noqa: E402
 

@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from ekf_slam_cost import seconds_per_call  # noqa: E402
 from machine import machine_info, machine_line  # noqa: E402
 
-from fastslam_edu.landmark.fastslam import ParticleSet  # noqa: E402
+from fastslam_edu.landmark.particle_set import ParticleSet  # noqa: E402
 from fastslam_edu.landmark.fastslam_tree import TreeParticleSet  # noqa: E402
 from fastslam_edu.landmark.tree import LandmarkTree, count_new_nodes, tree_depth  # noqa: E402
 from fastslam_edu.core.resampling import systematic  # noqa: E402

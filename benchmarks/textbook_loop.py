@@ -29,7 +29,10 @@ import numpy as np
 
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.core.ekf import initialise_landmark, innovation_statistics, update_landmark_one
-from fastslam_edu.landmark.fastslam import FastSLAMParams, Gate, _segments, evidence_fractions
+from fastslam_edu.landmark.evidence import evidence_fractions
+from fastslam_edu.landmark.fastslam import FastSLAMParams
+from fastslam_edu.landmark.gate import Gate
+from fastslam_edu.landmark.segments import measurement_segments
 from fastslam_edu.core.motion import move
 from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.weights import effective_sample_size, weights_from_log
@@ -58,7 +61,7 @@ def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_
     then re-initialised from the new sighting at no cost in weight (one of its
     two sightings is wrong). The measurements no particle explains never get
     here (:func:`is_explained`). ``power`` β: the weight grows by β · log N(ν; 0, Q)
-    (:func:`fastslam_edu.landmark.fastslam.evidence_fractions`).
+    (:func:`fastslam_edu.landmark.evidence.evidence_fractions`).
     """
     if j not in p.landmarks:
         p.landmarks[j] = initialise_landmark(p.pose, z, R)
@@ -123,7 +126,7 @@ def run_fastslam_loop(
     path = np.empty((len(stream), 3))
     escapes = Gate(params.gate_chi2, params.gate_escape_s, stream.n_landmarks)  # the escape from the gate, as the engine
     last_seen = np.full(stream.n_landmarks, -np.inf)
-    for s, e in _segments(stream):
+    for s, e in measurement_segments(stream):
         eps = rng.standard_normal((M, e - s + 1, params.motion_noise.n_draws))
         w = weights_from_log(np.array([p.logw for p in particles]))
         for i, k in enumerate(range(s, e + 1)):

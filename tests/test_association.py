@@ -17,12 +17,14 @@ from fastslam_edu.datasets.mrclam import write_dataset
 from fastslam_edu.datasets.sim import simulate_dataset
 from fastslam_edu.evaluation import association as score
 from fastslam_edu.evaluation.metrics import landmark_errors_aligned
-from fastslam_edu.landmark.association import (AssociationParams, associate_particle,
-                                                association_loglik, best_history, choose_landmarks,
-                                                existence_log_odds, initial_particles, joint_loglik, merge_copies,
-                                                new_landmark_loglik, pair_information, retire_landmarks, run_unknown,
-                                                seen_together)
-from fastslam_edu.landmark.fastslam import FastSLAMParams, Hook, run_fastslam
+from fastslam_edu.landmark.association import associate_particle, choose_landmarks, run_unknown
+from fastslam_edu.landmark.association_history import best_history, merge_copies, seen_together
+from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
+from fastslam_edu.landmark.association_params import AssociationParams, initial_particles
+from fastslam_edu.landmark.joint_compatibility import joint_loglik, pair_information
+from fastslam_edu.landmark.landmark_existence import existence_log_odds, retire_landmarks
+from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
+from fastslam_edu.landmark.hooks import Hook
 
 #: The simulator's sensor (σ_r 5 cm, σ_φ 0.02 rad), told to the filter as it is.
 SIM_FILTER = FastSLAMParams(n_particles=30, measurement_cov=np.diag([0.05**2, 0.02**2]), range_std_slope=0.0)
@@ -239,7 +241,7 @@ def test_joint_loglik_is_the_stacked_gaussian():
 def test_pose_jacobian_is_the_measurement_models():
     """The compiled H_x of one landmark is core.measurement's jacobian_pose (numpy, vectorised)."""
     from fastslam_edu.core.measurement import jacobian_pose
-    from fastslam_edu.landmark.association import pose_jacobian
+    from fastslam_edu.landmark.association_likelihood import pose_jacobian
 
     x, m = np.array([0.3, -0.2, 0.7]), np.array([2.1, 1.4])
     np.testing.assert_allclose(np.reshape(pose_jacobian(x, *m), (2, 3)), jacobian_pose(x, m), rtol=1e-12)

@@ -17,7 +17,9 @@ from fastslam_edu.evaluation.consistency import (
     simulator_params,
 )
 from fastslam_edu.datasets.events import groundtruth_at
-from fastslam_edu.landmark.fastslam import Monitor, combined_pose, run_fastslam
+from fastslam_edu.landmark.fastslam import run_fastslam
+from fastslam_edu.landmark.hooks import Monitor
+from fastslam_edu.landmark.particle_set import combined_pose
 from fastslam_edu.datasets.sim import SimConfig
 from streams import simulate
 

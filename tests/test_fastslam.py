@@ -29,22 +29,21 @@ import numpy as np
 import pytest
 
 from fastslam_edu.landmark import fastslam as fs
+from fastslam_edu.landmark import particle_set
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.events import groundtruth_at
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.core.ekf import update_landmark_one
-from fastslam_edu.landmark.fastslam import (
-    FastSLAMParams,
-    ParticleSet,
-    combined_map,
-    combined_pose,
-    resample_if_needed,
-    run_fastslam,
-    update_with_measurement,
-    update_with_measurements,
-)
+from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
+from fastslam_edu.landmark.evidence import evidence_fractions
+from fastslam_edu.landmark.gate import Gate
+from fastslam_edu.landmark.hooks import Hook, Kidnap, Monitor
+from fastslam_edu.landmark.particle_set import (ParticleSet, combined_heading, combined_map, combined_pose,
+                                                propagate_segment, resample_if_needed, update_with_measurement,
+                                                update_with_measurements)
+from fastslam_edu.landmark.segments import segment_chunks
 from fastslam_edu.evaluation.metrics import landmark_errors
-from fastslam_edu.core.motion import propagate
+from fastslam_edu.core.motion import MotionNoise, propagate
 from fastslam_edu.datasets.sim import SimConfig
 from streams import path_rmse, simulate
 
@@ -477,7 +476,7 @@ def test_gate_reinitialises_a_young_landmark_at_no_cost_when_another_particle_ex
 def test_gate_escape_starts_exactly_escape_s_after_the_first_unexplained_sighting():
     """By hand, escape_s = 5: unexplained since t = 1 (kept through later unexplained sightings) escapes from
     t = 6 on, not at 5.9; an explained sighting ends it; escape_s None never escapes."""
-    g = fs.Gate(None, 5.0, 3)
+    g = Gate(None, 5.0, 3)
     g.record(1.0, np.array([0, 1]), np.array([False, True]))
     assert g.escaped(5.9, np.array([0, 1])).tolist() == [False, False]
     assert g.escaped(6.0, np.array([0, 1])).tolist() == [True, False]
@@ -485,7 +484,7 @@ def test_gate_escape_starts_exactly_escape_s_after_the_first_unexplained_sightin
     assert g.escaped(6.0, np.array([0])).tolist() == [True]
     g.record(7.0, np.array([0]), np.array([True]))
     assert g.escaped(100.0, np.array([0, 2])).tolist() == [False, False]
-    never = fs.Gate(None, None, 1)
+    never = Gate(None, None, 1)
     never.record(0.0, np.array([0]), np.array([False]))
     assert not never.escaped(1e9, np.array([0])).any()
 
@@ -493,12 +492,12 @@ def test_gate_escape_starts_exactly_escape_s_after_the_first_unexplained_sightin
 def test_evidence_fractions_closed_form():
     """β = min(1, Δt/τ), Δt since the previous sighting of the same landmark; first sightings count fully."""
     last = np.full(4, -np.inf)
-    np.testing.assert_array_equal(fs.evidence_fractions(10.0, [0, 2], last, 4.0), [1.0, 1.0])
-    np.testing.assert_allclose(fs.evidence_fractions(11.0, [0, 1], last, 4.0), [0.25, 1.0])
-    np.testing.assert_allclose(fs.evidence_fractions(19.0, [2, 0], last, 4.0), [1.0, 1.0])
-    np.testing.assert_allclose(fs.evidence_fractions(19.5, [2], last, 4.0), [0.125])
+    np.testing.assert_array_equal(evidence_fractions(10.0, [0, 2], last, 4.0), [1.0, 1.0])
+    np.testing.assert_allclose(evidence_fractions(11.0, [0, 1], last, 4.0), [0.25, 1.0])
+    np.testing.assert_allclose(evidence_fractions(19.0, [2, 0], last, 4.0), [1.0, 1.0])
+    np.testing.assert_allclose(evidence_fractions(19.5, [2], last, 4.0), [0.125])
     np.testing.assert_array_equal(last, [19.0, 11.0, 19.5, -np.inf])
-    np.testing.assert_array_equal(fs.evidence_fractions(20.0, [2, 3], last, None), [1.0, 1.0])
+    np.testing.assert_array_equal(evidence_fractions(20.0, [2, 3], last, None), [1.0, 1.0])
 
 
 @pytest.mark.parametrize("power", [1.0, 0.25, 0.0])
@@ -554,7 +553,7 @@ def test_gate_escape_recovers_from_a_kidnap(sim2):
     errs, rejected = {}, {}
     for escape_s in (2.0, None):
         p = dataclasses.replace(MATCHED, gate_escape_s=escape_s)
-        r = run_fastslam(stream, p, 0, hooks=[fs.Kidnap(t_k, kp)])
+        r = run_fastslam(stream, p, 0, hooks=[Kidnap(t_k, kp)])
         last = r.t >= r.t[-1] - 5.0
         errs[escape_s] = path_rmse(r.t[last], r.pose_mean[last], log)
         rejected[escape_s] = r.measurements_rejected
@@ -571,7 +570,7 @@ def _kidnap_case(sim2, with_measurement: bool, proposal: str = "motion"):
     k = int(np.flatnonzero(has_meas == with_measurement)[len(stream) // 4 if not with_measurement else 20])
     kp = np.array([1.0, -2.0, 2.5])
     r = run_fastslam(stream, dataclasses.replace(MATCHED, n_particles=20, proposal=proposal), 0,
-                     hooks=[fs.Kidnap(float(stream.t[k]) - 1e-4, kp)])
+                     hooks=[Kidnap(float(stream.t[k]) - 1e-4, kp)])
     return stream, k, kp, r
 
 
@@ -630,12 +629,12 @@ def test_combined_heading_of_one_set_is_the_wrapped_atan2():
     theta = wrap_angle(rng.uniform(-np.pi, np.pi, 30))
     w = rng.random(30)
     w /= w.sum()
-    got = fs.combined_heading(theta, w)
+    got = combined_heading(theta, w)
     assert isinstance(got, float)
     assert got == wrap_angle(np.arctan2(w @ np.sin(theta), w @ np.cos(theta)))
     # exactly behind: sin sums to -0.0, cos to -1 -> atan2 gives -π, the mean is π
     assert np.arctan2(-0.0, -1.0) == -np.pi
-    assert fs.combined_heading(np.array([-np.pi]), np.array([1.0])) == np.pi
+    assert combined_heading(np.array([-np.pi]), np.array([1.0])) == np.pi
 
 
 @pytest.mark.parametrize("spread", [0.05, 1.0, 3.0])
@@ -646,7 +645,7 @@ def test_combined_heading_single_precision_path_equals_the_direct_formula(spread
     w = rng.random(50)
     w /= w.sum()
     direct = np.arctan2(w @ np.sin(theta), w @ np.cos(theta))
-    got = fs.combined_heading(theta, w)
+    got = combined_heading(theta, w)
     assert np.abs(wrap_angle(got - direct)).max() < 1e-6
     assert np.all((got > -np.pi) & (got <= np.pi))
     if spread < 0.1:
@@ -668,8 +667,8 @@ def test_propagate_segment_records_what_propagate_computes(L):
     b = ParticleSet(a.poses.copy(), a.mu.copy(), a.sigma.copy(), a.seen.copy(), a.logw.copy())
     w = rng.random(30)
     w /= w.sum()
-    path = fs.propagate(a, u, dt, SIM.odometry_noise, np.random.default_rng(9))
-    mean, best = fs.propagate_segment(b, u, dt, SIM.odometry_noise, np.random.default_rng(9), w)
+    path = particle_set.propagate(a, u, dt, SIM.odometry_noise, np.random.default_rng(9))
+    mean, best = propagate_segment(b, u, dt, SIM.odometry_noise, np.random.default_rng(9), w)
     np.testing.assert_allclose(a.poses, b.poses, atol=1e-12)
     np.testing.assert_allclose(a.poses[:, :2], path[:, -1, :2], atol=1e-12)
     expected = combined_pose(path, w)
@@ -681,8 +680,8 @@ def test_propagate_segment_records_what_propagate_computes(L):
     for n in {0, L - 1, L // 2}:
         c = ParticleSet(a.poses.copy(), a.mu.copy(), a.sigma.copy(), a.seen.copy(), a.logw.copy())
         d = ParticleSet(a.poses.copy(), a.mu.copy(), a.sigma.copy(), a.seen.copy(), a.logw.copy())
-        full = fs.propagate_segment(c, u, dt, SIM.odometry_noise, np.random.default_rng(2), w)
-        part = fs.propagate_segment(d, u, dt, SIM.odometry_noise, np.random.default_rng(2), w, n_record=n)
+        full = propagate_segment(c, u, dt, SIM.odometry_noise, np.random.default_rng(2), w)
+        part = propagate_segment(d, u, dt, SIM.odometry_noise, np.random.default_rng(2), w, n_record=n)
         np.testing.assert_array_equal(c.poses, d.poses)
         assert part[0].shape == part[1].shape == (n, 3)
         np.testing.assert_allclose(part[0][:, :2], full[0][:n, :2], atol=1e-12)
@@ -782,7 +781,7 @@ def test_best_pose_and_best_map_are_the_highest_weight_particle(sim2):
         seen[t] = particles.poses[int(np.argmax(w))].copy()
         uneven.append(np.argmax(w) != np.argmin(w))
 
-    r = run_fastslam(stream, p, 3, hooks=[fs.Monitor(record)])
+    r = run_fastslam(stream, p, 3, hooks=[Monitor(record)])
     assert r.n_resamples == 0 and len(seen) == len(uneven) and sum(uneven) > 10
     steps = np.searchsorted(r.t, list(seen))
     np.testing.assert_array_equal(r.pose_best[steps], np.array(list(seen.values())))
@@ -838,15 +837,15 @@ def test_compiled_run_equals_the_python_loop(resampler, threshold, mode, noise_o
     """run_fastslam without hooks runs in one compiled call; with a hook, its Python loop: the same numbers
     (FastSLAM 1.0 and 2.0)."""
     data, log, stream = simulate(7, duration=30.0)
-    noise = fs.MotionNoise(sigma_v=0.05, sigma_omega=0.05) if noise_on == "control" else \
-        fs.MotionNoise(mode="state", sigma_xy=0.03, sigma_theta=0.03)
+    noise = MotionNoise(sigma_v=0.05, sigma_omega=0.05) if noise_on == "control" else \
+        MotionNoise(mode="state", sigma_xy=0.03, sigma_theta=0.03)
     params = FastSLAMParams(n_particles=40, resampler=resampler, resample_threshold=threshold, mode=mode,
                             motion_noise=noise, proposal=proposal)
     kw = dict(landmarks=data.landmark_positions)
     run = fs.start_run(stream, params, 0, **kw)
     assert run.compiled(())
     compiled = run_fastslam(stream, params, 5, **kw)
-    looped = run_fastslam(stream, params, 5, hooks=[fs.Hook()], **kw)
+    looped = run_fastslam(stream, params, 5, hooks=[Hook()], **kw)
     assert compiled.n_resamples == looped.n_resamples > 0
     assert compiled.measurements_rejected == looped.measurements_rejected
     np.testing.assert_array_equal(compiled.pose_mean, looped.pose_mean)
@@ -856,7 +855,7 @@ def test_compiled_run_equals_the_python_loop(resampler, threshold, mode, noise_o
     np.testing.assert_array_equal(compiled.particles.logw, looped.particles.logw)
 
 
-class _Chunks(fs.Hook):
+class _Chunks(Hook):
     """A hook served between compiled chunks of ``chunk_steps`` steps: it notes each chunk ``s..e`` and the mean
     pose the run has recorded at its end (what a progress bar or a plot of the run could read)."""
 
@@ -880,7 +879,7 @@ def test_a_run_in_chunks_equals_the_run_in_one_call(chunk_steps, proposal):
     params = FastSLAMParams(n_particles=40, motion_noise=SIM.odometry_noise, resample_threshold=0.8, proposal=proposal)
     hook = _Chunks(chunk_steps)
     run = fs.start_run(stream, params, 0)
-    assert run.compiled((hook,)) and not run.compiled((fs.Hook(),))
+    assert run.compiled((hook,)) and not run.compiled((Hook(),))
     whole = run_fastslam(stream, params, 5)
     chunked = run_fastslam(stream, params, 5, hooks=[hook])
     starts, ends = np.array(hook.spans).T
@@ -899,10 +898,10 @@ def test_a_run_in_chunks_equals_the_run_in_one_call(chunk_steps, proposal):
 def test_segment_chunks_cover_the_segments_in_order():
     """segment_chunks: whole segments, at most max_steps steps per chunk unless one segment is longer."""
     segments = np.array([[0, 2], [3, 3], [4, 9], [10, 11], [12, 30], [31, 31]])
-    chunks = list(fs.segment_chunks(segments, 5))
+    chunks = list(segment_chunks(segments, 5))
     assert chunks == [(0, 2), (2, 3), (3, 4), (4, 5), (5, 6)]
-    assert list(fs.segment_chunks(segments, 100)) == [(0, 6)]
-    assert list(fs.segment_chunks(segments[:0], 5)) == []
+    assert list(segment_chunks(segments, 100)) == [(0, 6)]
+    assert list(segment_chunks(segments[:0], 5)) == []
 
 
 def test_run_timer_keeps_compilation_apart():
@@ -936,7 +935,7 @@ def test_a_hook_sees_every_resampling_decision_and_the_parents_drawn():
     data, log, stream = simulate(7, duration=30.0)
     params = FastSLAMParams(n_particles=30, motion_noise=SIM.odometry_noise, resample_threshold=0.5)
 
-    class Parents(fs.Hook):
+    class Parents(Hook):
         def __init__(self, keep_weights=False):
             self.calls, self.drawn, self.keep_weights = 0, 0, keep_weights
 

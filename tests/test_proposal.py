@@ -27,8 +27,8 @@ from hypothesis import strategies as st
 
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.core.ekf import gaussian_log_likelihood
-from fastslam_edu.landmark.fastslam import (FastSLAMParams, ParticleSet, make_sightings, run_fastslam,
-                                            update_with_sightings)
+from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
+from fastslam_edu.landmark.particle_set import ParticleSet, make_sightings, update_with_sightings
 from textbook_loop import run_fastslam_loop
 from fastslam_edu.landmark.fastslam_tree import TreeParticleSet
 from fastslam_edu.core.measurement import range_bearing

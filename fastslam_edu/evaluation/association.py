@@ -34,8 +34,11 @@ from scipy.optimize import linear_sum_assignment
 from fastslam_edu.core.measurement import innovation, range_bearing
 from fastslam_edu.evaluation import registration
 from fastslam_edu.core.se2 import align_se2, apply_se2
-from fastslam_edu.landmark.association import AssociationParams, choose_landmarks, initial_particles
-from fastslam_edu.landmark.fastslam import FilterRun, Hook, ParticleSet
+from fastslam_edu.landmark.association import choose_landmarks
+from fastslam_edu.landmark.association_params import AssociationParams, initial_particles
+from fastslam_edu.landmark.fastslam import FilterRun
+from fastslam_edu.landmark.hooks import Hook
+from fastslam_edu.landmark.particle_set import ParticleSet
 from fastslam_edu.landmark.fastslam_step import pose_covariance
 
 #: Map landmarks further than this from every surveyed landmark they could be matched to are spurious [m].
@@ -214,7 +217,7 @@ def association_accuracy_ceiling(t, poses, sighting_t, z, R, landmarks, true_ind
 @njit(cache=True)
 def particles_right(P, z, R, t, truth, w, rules):
     """For each sighting ``z`` (n, 2) of one instant at time ``t``, the weight ``w`` (M,) of the particles of ``P``
-    (:class:`~fastslam_edu.landmark.association.MapParticles`) whose association
+    (:class:`~fastslam_edu.landmark.association_params.MapParticles`) whose association
     (:func:`~fastslam_edu.landmark.association.choose_landmarks`, with ``rules``) gives it its true landmark
     ``truth`` (n,) (a slot of ``P``): (n,). The pose covariance the rule adds is the filter's:
     ``rules.pose_scale`` times the particles' (:func:`~fastslam_edu.landmark.fastslam_step.pose_covariance`)."""
@@ -230,7 +233,7 @@ def particles_right(P, z, R, t, truth, w, rules):
 
 class OnlineCeiling(Hook):
     """What the association of the filter without barcodes would get right, decided inside FastSLAM run *with*
-    known correspondences: a :class:`~fastslam_edu.landmark.fastslam.Hook` for
+    known correspondences: a :class:`~fastslam_edu.landmark.hooks.Hook` for
     :func:`~fastslam_edu.landmark.fastslam.run_fastslam` (``hooks=(probe,)``) that changes nothing.
 
     At each measurement instant, after the motion and before the update, every particle decides the instant's

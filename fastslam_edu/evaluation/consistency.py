@@ -19,7 +19,7 @@ For FastSLAM the pose estimate and its covariance are those of the particle
 cloud (:func:`pose_covariance`: the weighted mean and covariance of the
 particles' poses, headings averaged on the circle); the map's are those of the
 mixture of the particles' landmark EKFs
-(:func:`fastslam_edu.landmark.fastslam.combined_map`). :class:`SpreadRecorder` collects
+(:func:`fastslam_edu.landmark.particle_set.combined_map`). :class:`SpreadRecorder` collects
 the cloud during a run through ``run_fastslam(..., hooks=[Monitor(callback)])`` without
 changing it. :func:`align_pose` moves a pose and its covariance by the rigid
 motion that fits the estimated map to the true one: the NEES of the aligned
@@ -33,7 +33,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.landmark.fastslam import FastSLAMParams, combined_map
+from fastslam_edu.landmark.fastslam import FastSLAMParams
+from fastslam_edu.landmark.particle_set import combined_map
 from fastslam_edu.landmark.fastslam_step import pose_covariance as compiled_pose_covariance, weighted_mean_pose
 from fastslam_edu.datasets.sim import SimConfig
 
@@ -176,7 +177,7 @@ class SpreadRecorder:
     sighting between them get the same step; times after the last measurement
     step get none). A record is the step's time, the cloud's mean pose and
     covariance (:func:`pose_covariance`) and, with ``maps=True``, the combined
-    map (:func:`fastslam_edu.landmark.fastslam.combined_map`: means (N, 2), covariances
+    map (:func:`fastslam_edu.landmark.particle_set.combined_map`: means (N, 2), covariances
     (N, 2, 2), observed (N,)). It reads the particles and never writes them.
 
     Attributes (lists, one entry per record): ``t``, ``mean``, ``cov``, ``maps``.

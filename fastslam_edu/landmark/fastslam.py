@@ -30,8 +30,12 @@ logw       (M,)            :math:`\\log w^{[m]}` (unnormalised)
 
 Steps 1 and 2 run particle by particle, as table 13.1 of *Probabilistic
 Robotics* reads, in the compiled kernels of :mod:`fastslam_edu.landmark.fastslam_step`;
-this module holds the particle set, the resampling and combining steps and the
-driver that runs them over a log. The driver's loop (:func:`run_fastslam`) is
+the particle set and the four steps on it are :mod:`fastslam_edu.landmark.particle_set`;
+this module holds the filter's settings and the driver that runs the steps over a log,
+with its proposal strategies (:mod:`fastslam_edu.landmark.proposal_strategies`), its gate
+(:mod:`fastslam_edu.landmark.gate`), the exponents β (:mod:`fastslam_edu.landmark.evidence`),
+the segments of steps (:mod:`fastslam_edu.landmark.segments`) and hooks
+(:mod:`fastslam_edu.landmark.hooks`). The driver's loop (:func:`run_fastslam`) is
 Python, step by step, with hooks; a run without hooks, with FastSLAM 1.0's
 proposal on the dense particle set, makes the same steps with the same random
 numbers in one compiled call (:meth:`FilterRun.run_compiled`).
@@ -43,7 +47,6 @@ its squared Mahalanobis distance exceeds ``gate_chi2`` (default: the point of
 χ² with 2 degrees of freedom exceeded once in a million), unless the same
 landmark has been rejected for ``gate_escape_s`` seconds (:func:`update_with_measurements`, :class:`Gate`).
 """
-
 from __future__ import annotations
 
 import math
@@ -52,17 +55,19 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.landmark.fastslam_step import (RESAMPLER_CODES, Log, Particles, Record, Settings, Sightings,
-                                                 gate_escapes, gate_record, normalise_weights, run_segments,
-                                                 sample_segment, standard_normals, tempering_exponents,
-                                                 update_particles, weighted_mean_pose)
-from fastslam_edu.core.motion import MotionNoise, move_segment
+from fastslam_edu.core.motion import MotionNoise
 from fastslam_edu.core.params import Params
-from fastslam_edu.landmark.proposal import motion_prediction, sample_improved_poses, segment_motion
 from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.timing import RunTimer
+from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.landmark.evidence import evidence_fractions
+from fastslam_edu.landmark.fastslam_step import (RESAMPLER_CODES, Log, Record, Settings, run_segments,
+                                                 weighted_mean_pose)
+from fastslam_edu.landmark.gate import Gate
+from fastslam_edu.landmark.hooks import ProgressBar
+from fastslam_edu.landmark.particle_set import ParticleSet, combined_map, draw_parents
+from fastslam_edu.landmark.proposal_strategies import ImprovedProposal, KnownPoses, MotionProposal
+from fastslam_edu.landmark.segments import MAX_SEGMENT, measurement_segments, segment_chunks, stream_commands
 
 MODES = ("slam", "localize", "map")
 PROPOSALS = ("motion", "fastslam2")
@@ -75,9 +80,6 @@ CHI2_2DOF_999 = float(chi2.isf(1e-3, df=2))
 #: inflated R of the defaults it catches only gross errors (a misread barcode, a range off
 #: by metres).
 CHI2_2DOF_1E6 = float(chi2.isf(1e-6, df=2))
-
-#: Longest run of odometry steps propagated at once (bounds memory: M × L × 3 floats).
-MAX_SEGMENT = 512
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,345 +212,6 @@ class FastSLAMParams(Params):
 
 
 @dataclass
-class ParticleSet:
-    """The M particles of FastSLAM 1.0 (arrays, see the module docstring)."""
-
-    poses: np.ndarray
-    mu: np.ndarray
-    sigma: np.ndarray
-    seen: np.ndarray
-    logw: np.ndarray
-    count: np.ndarray | None = None  # (M, K) sightings used per landmark (default: 1 where seen)
-
-    def __post_init__(self):
-        if self.count is None:
-            self.count = np.asarray(self.seen, dtype=np.int64).copy()
-
-    @classmethod
-    def initial(cls, n_particles: int, n_landmarks: int, x0) -> "ParticleSet":
-        """All particles at pose ``x0`` (3,), no landmark seen, uniform weights."""
-        x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (3,) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"initial pose must be 3 finite numbers (x, y, theta), got {x0!r}")
-        M, K = int(n_particles), int(n_landmarks)
-        return cls(
-            poses=np.tile(x0, (M, 1)),
-            mu=np.zeros((M, K, 2)),
-            sigma=np.tile(np.eye(2), (M, K, 1, 1)),
-            seen=np.zeros((M, K), dtype=bool),
-            logw=np.zeros(M),
-        )
-
-    def __len__(self) -> int:
-        return self.poses.shape[0]
-
-    @property
-    def weights(self) -> np.ndarray:
-        """Normalised weights :math:`w^{[m]}`, shape (M,) (all log weights :math:`-\\infty`: uniform)."""
-        w = np.empty(len(self.logw))
-        normalise_weights(np.asarray(self.logw, dtype=float), w)
-        return w
-
-    def with_known_map(self, landmarks) -> "ParticleSet":
-        """Every particle holding the known landmarks ``(K, 2)`` (localisation), Σ = 10⁻⁶ I."""
-        self.mu[:] = landmarks
-        self.sigma[:] = np.eye(2) * 1e-6
-        self.seen[:] = True
-        self.count[:] = 1
-        return self
-
-    def arrays(self) -> Particles:
-        """The arrays as the step's kernels take them (:class:`fastslam_edu.landmark.fastslam_step.Particles`), shared."""
-        return Particles(self.poses, self.mu, self.sigma, self.seen, self.count, self.logw)
-
-    def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
-               power=None, proposal_loglik=None) -> np.ndarray:
-        """Step 2 for the measurements of one instant: :func:`update_with_sightings`."""
-        sightings = make_sightings(z, k, R, len(self), escape=escape, power=power, proposal_loglik=proposal_loglik)
-        return update_with_sightings(self, sightings, gate_chi2=gate_chi2, update_map=update_map)
-
-    def to_particle_set(self) -> "ParticleSet":
-        """The set as dense arrays: itself (see the tree storage of :mod:`fastslam_edu.landmark.fastslam_tree`)."""
-        return self
-
-    def select(self, indices) -> "ParticleSet":
-        """Particles ``indices`` as a new set with **copied** arrays and uniform weights.
-
-        Fancy indexing copies, so two offspring of one parent never share memory:
-        updating a landmark in one cannot change the other (the bug a shallow
-        ``copy.copy`` of a particle object has).
-        """
-        idx = np.asarray(indices)
-        return ParticleSet(
-            poses=np.take(self.poses, idx, axis=0),  # = self.poses[idx], with less overhead
-            mu=np.take(self.mu, idx, axis=0),
-            sigma=np.take(self.sigma, idx, axis=0),
-            seen=np.take(self.seen, idx, axis=0),
-            logw=np.zeros(len(idx)),
-            count=np.take(self.count, idx, axis=0),
-        )
-
-
-# ---------------------------------------------------------------- the four steps
-
-
-def propagate(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.Generator):
-    """Step 1: sample the motion model for every particle through L odometry steps.
-
-    Parameters
-    ----------
-    u : ndarray (L, 2)
-        Commands ``(v, ω)`` of the steps.
-    dt : ndarray (L,)
-        Step lengths [s].
-
-    Returns
-    -------
-    path : ndarray (M, L, 3)
-        Every particle's pose after each step (:func:`fastslam_edu.core.motion.move_segment`,
-        the same random numbers as :func:`propagate_segment`); ``particles.poses`` is
-        set to the poses after the last step.
-    """
-    u, dt = np.atleast_2d(np.asarray(u, dtype=float)), np.atleast_1d(np.asarray(dt, dtype=float))
-    eps = draw_normals(rng, len(particles), len(dt), noise.n_draws)
-    path = move_segment(particles.poses, u, dt, noise, eps.transpose(2, 0, 1))
-    particles.poses = path[:, -1].copy()
-    return path
-
-
-def draw_normals(rng: np.random.Generator, m: int, n_steps: int, k: int) -> np.ndarray:
-    """The numbers of ``rng.standard_normal((m, n_steps, k))``, stored step by step: (n_steps, k, m), as
-    :func:`fastslam_edu.landmark.fastslam_step.sample_segment` reads them (drawn by the compiled loop when
-    there are many)."""
-    if m * n_steps * k < 4096:
-        return np.ascontiguousarray(rng.standard_normal((m, n_steps, k)).transpose(1, 2, 0))
-    out = np.empty((n_steps, k, m))
-    standard_normals(rng, out)
-    return out
-
-
-def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.Generator, w,
-                      n_record: int | None = None):
-    """Step 1 as the filter runs it: line 4 of table 13.1 for each particle, recording the estimates.
-
-    The same random numbers as :func:`propagate`, but instead of every
-    particle's path (M, L, 3) it returns what the filter records at each step:
-    the weighted-mean pose and the pose of the highest-weight particle
-    (:func:`fastslam_edu.landmark.fastslam_step.sample_segment`).
-
-    Parameters
-    ----------
-    u, dt, noise, rng : as :func:`propagate`.
-    w : ndarray (M,)
-        Normalised weights (constant along the segment: no measurement in it).
-    n_record : int, optional
-        Estimates for the first ``n_record`` steps only (default all ``L``): at a
-        measurement step the filter records its estimate after the update instead.
-
-    Returns
-    -------
-    mean, best : ndarray (n_record, 3)
-        Weighted-mean pose (:func:`combined_pose`) and best particle's pose after each step.
-    """
-    u, dt = np.asarray(u, dtype=float).reshape(-1, 2), np.asarray(dt, dtype=float).reshape(-1)
-    n = len(dt) if n_record is None else n_record
-    mean, best = np.empty((n, 3)), np.empty((n, 3))
-    particles.poses = np.array(particles.poses, dtype=float)  # a private copy, moved in place
-    sample_segment(particles.poses, u, dt, noise.densities, draw_normals(rng, len(particles), len(dt), noise.n_draws),
-                   w, mean, best)
-    return mean, best
-
-
-def update_with_measurement(particles: ParticleSet, z, k: int, R, **options) -> bool:
-    """Step 2 for one measurement ``z = (r, φ)`` of landmark ``k``: :func:`update_with_measurements` with n = 1."""
-    return bool(update_with_measurements(particles, np.reshape(z, (1, 2)), [k], np.reshape(R, (1, 2, 2)),
-                                         **options)[0])
-
-
-def make_sightings(z, k, R, n_particles: int, *, escape=None, power=None, proposal_loglik=None) -> Sightings:
-    """The sightings of one instant as the step's kernels take them (:class:`fastslam_edu.landmark.fastslam_step.Sightings`).
-
-    ``z`` (n, 2), ``k`` (n,), ``R`` (n, 2, 2) or (2, 2); ``escape`` (n,) bool
-    (default none escapes the gate), ``power`` (n,) the likelihoods' exponents β
-    (default 1), ``proposal_loglik`` (M, n) log weights that replace FastSLAM
-    1.0's where not NaN (default all NaN).
-    """
-    z = np.asarray(z, dtype=float).reshape(-1, 2)
-    n = len(z)
-    k = np.asarray(k, dtype=np.int64).reshape(-1)
-    R = np.asarray(R, dtype=float)
-    if R.shape != (n, 2, 2):
-        R = np.broadcast_to(R, (n, 2, 2)).copy()
-    escape = np.zeros(n, dtype=bool) if escape is None else _per_sighting(escape, bool, n)
-    power = np.ones(n) if power is None else _per_sighting(power, float, n)
-    loglik = (np.full((n_particles, n), np.nan) if proposal_loglik is None
-              else np.asarray(proposal_loglik, float).reshape(n_particles, n))
-    return Sightings(z, k, R, escape, power, loglik)
-
-
-def _per_sighting(values, dtype, n: int) -> np.ndarray:
-    """``values`` as an (n,) array of ``dtype`` (one value is repeated)."""
-    values = np.asarray(values, dtype=dtype).reshape(-1)
-    return values if len(values) == n else np.broadcast_to(values, (n,)).copy()
-
-
-def update_with_sightings(particles: ParticleSet, sightings: Sightings, *, gate_chi2: float | None = None,
-                          update_map: bool = True) -> np.ndarray:
-    """Step 2 for the sightings of one instant (:func:`make_sightings`); see :func:`update_with_measurements`."""
-    explained = np.ones(len(sightings.j), dtype=bool)
-    update_particles(particles.arrays(), sightings, np.inf if gate_chi2 is None else float(gate_chi2),
-                     bool(update_map), explained)
-    return explained
-
-
-def update_with_measurements(particles: ParticleSet, z, k, R, *, update_map: bool = True,
-                             gate_chi2: float | None = None, escape=None, power=None) -> np.ndarray:
-    """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,), in order.
-
-    Lines 5–17 of table 13.1 for every particle
-    (:func:`fastslam_edu.landmark.fastslam_step.update_particles`): particles that have not
-    seen a landmark initialise it (:math:`\\mu = h^{-1}(x, z)`, :math:`\\Sigma = G R G^\\top`) and
-    keep their weight; the others update its EKF and add
-    :math:`\\beta \\log \\mathcal N(\\nu; 0, Q)` to their log weight. With
-    ``update_map=False`` (localisation with a known map) only the weights change.
-
-    The gate sets aside a measurement that *no* particle explains
-    (:math:`d^2 = \\nu^\\top Q^{-1} \\nu >` ``gate_chi2`` for every particle that has seen
-    the landmark): it changes neither weights nor maps of those particles. A
-    particle for which it is an outlier, while others explain it, keeps the
-    log-likelihood but leaves its landmark alone (a landmark seen only once is
-    re-initialised instead, at no cost in weight).
-
-    Parameters
-    ----------
-    R : (n, 2, 2) or (2, 2)
-        Measurement noise covariances.
-    gate_chi2 : float or None
-        None: no gate.
-    escape : (n,) bool, optional
-        Measurements applied without the gate (:class:`Gate`).
-    power : (n,), optional
-        Exponents :math:`\\beta` of their likelihoods (:func:`evidence_fractions`; default 1).
-
-    FastSLAM 2.0 weighs with its own log weights: :func:`make_sightings` (``proposal_loglik``)
-    and :func:`update_with_sightings`.
-
-    Returns
-    -------
-    explained : (n,) bool
-        False where no particle explains the measurement (rejected by the gate, unless escaped).
-    """
-    sightings = make_sightings(z, k, R, len(particles), escape=escape, power=power)
-    return update_with_sightings(particles, sightings, gate_chi2=gate_chi2, update_map=update_map)
-
-
-def evidence_fractions(t, landmarks, last_seen, tau: float | None) -> np.ndarray:
-    """Exponents :math:`\\beta = \\min(1, \\Delta t / \\tau)` of the likelihoods of sightings at time ``t``.
-
-    :math:`\\Delta t` is the time since the previous sighting of the same landmark
-    (``last_seen`` (K,) [s], ``-inf`` if none; updated in place to ``t``).
-
-    Why: FastSLAM multiplies the likelihoods of all sightings as if their errors
-    were independent. MR.CLAM's are not: a landmark's range and bearing errors
-    persist for seconds (correlation of the residuals against groundtruth,
-    Dataset 6: range 0.87 after 1 s, 0.59 after 4 s; bearing 0.61 and 0.50),
-    and a landmark in view is read 2–3 times per second. Counted as
-    independent, a few seconds of near-copies make the weights far too peaked,
-    resampling throws away particles that were right, and the heading
-    hypotheses die out (particle depletion). Raising each likelihood to the
-    power β — a "tempered" likelihood — counts a sighting :math:`\\Delta t` after the
-    previous one as the fraction :math:`\\Delta t / \\tau` of an independent one. For an
-    AR(1) error with one-second correlation ρ, the new information per reading is
-    about :math:`(1-\\rho)/(1+\\rho)`: 0.24 for the bearing (:math:`\\tau \\approx 4` s), 0.07 for the
-    range (~14 s). ``tau=None`` gives β = 1 (the textbook).
-
-    Returns ``beta`` (n,) for ``landmarks`` (n,).
-    """
-    landmarks = _landmark_indices(landmarks)
-    beta = np.empty(len(landmarks))
-    tempering_exponents(float(t), landmarks, last_seen, 0.0 if tau is None else float(tau), beta)
-    return beta
-
-
-def resample_if_needed(
-    particles: ParticleSet, resampler: str, threshold: float, rng: np.random.Generator
-) -> tuple[ParticleSet, float, bool]:
-    """Step 3: resample when :math:`N_\\text{eff} < \\text{threshold}\\cdot M`.
-
-    Returns ``(particles, N_eff before, resampled?)``; after resampling the
-    weights are uniform (the evidence is now in the particle counts — keeping
-    the old weights as well would count it twice).
-    """
-    parents, n_eff, _ = draw_parents(particles, resampler, threshold, rng)
-    if parents is None:
-        return particles, n_eff, False
-    return particles.select(parents), n_eff, True
-
-
-def draw_parents(particles: ParticleSet, resampler: str, threshold: float, rng: np.random.Generator):
-    """The decision of step 3: ``(parents, N_eff, w)``, the indices the resampler draws (M,), or None when
-    :math:`N_\\text{eff} \\ge \\text{threshold}\\cdot M` (``threshold`` 1.0: always draw); ``w`` the
-    normalised weights it drew them with."""
-    w = np.empty(len(particles))
-    n_eff = normalise_weights(np.asarray(particles.logw, dtype=float), w)  # and N_eff = 1 / Σ w²
-    if threshold >= 1.0 or n_eff < threshold * len(particles):  # 1.0: at every call (the write-up)
-        return get_resampler(resampler)(w, rng), n_eff, w
-    return None, n_eff, w
-
-
-def combined_pose(poses, w) -> np.ndarray:
-    """Weighted mean pose: :math:`\\bar x = \\sum_m w^{[m]} x^{[m]}`, with the circular mean for θ.
-
-    ``poses`` (M, ..., 3), ``w`` (M,) normalised; returns (..., 3), heading
-    wrapped (:func:`combined_heading`).
-    """
-    poses = np.asarray(poses, dtype=float)
-    out = np.empty(poses.shape[1:])
-    if poses.ndim == 2:  # one pose per particle (M, 3): x and y in one product
-        out[:2] = w @ poses[:, :2]
-    else:
-        out[..., 0] = w @ poses[..., 0]
-        out[..., 1] = w @ poses[..., 1]
-    out[..., 2] = combined_heading(poses[..., 2], w)
-    return out
-
-
-def combined_heading(theta, w) -> np.ndarray:
-    """Circular weighted mean :math:`\\bar\\theta = \\operatorname{atan2}(\\sum_m w^{[m]} \\sin\\theta^{[m]}, \\sum_m w^{[m]} \\cos\\theta^{[m]})`.
-
-    ``theta`` (M, ...) [rad], ``w`` (M,) normalised; returns (...), wrapped.
-    """
-    theta = np.asarray(theta, dtype=float)
-    return wrap_angle(np.arctan2(w @ np.sin(theta), w @ np.cos(theta)))
-
-
-def combined_map(particles: ParticleSet):
-    """Step 4 for the map: weighted mean landmarks and their mixture covariance.
-
-    :math:`\\bar\\mu_k = \\sum_m w^{[m]} \\mu_k^{[m]}` over the particles that have seen
-    ``k`` (weights renormalised among them), and
-    :math:`\\bar\\Sigma_k = \\sum_m w^{[m]} (\\Sigma_k^{[m]} + (\\mu_k^{[m]}-\\bar\\mu_k)(\\mu_k^{[m]}-\\bar\\mu_k)^\\top)`,
-    the covariance of the Gaussian mixture (the write-up's "weighted sum of squared
-    covariances" is not a covariance: see the chapter on putting it together).
-
-    Returns ``mu (K, 2)``, ``sigma (K, 2, 2)``, ``observed (K,)``; NaN for unseen landmarks.
-    """
-    w = particles.weights[:, None] * particles.seen  # (M, K)
-    tot = w.sum(axis=0)
-    observed = tot > 0
-    wn = np.divide(w, tot, out=np.zeros_like(w), where=observed)
-    mu = np.einsum("mk,mkd->kd", wn, particles.mu)
-    d = particles.mu - mu[None]
-    sigma = np.einsum("mk,mkij->kij", wn, particles.sigma + d[..., :, None] * d[..., None, :])
-    mu[~observed] = np.nan
-    sigma[~observed] = np.nan
-    return mu, sigma, observed
-
-
-# ---------------------------------------------------------------- the whole run
-
-
-@dataclass
 class FastSLAMResult:
     """What a run produces.
 
@@ -585,226 +248,6 @@ class FastSLAMResult:
     landmark_subjects: np.ndarray
     final: object = None
     compile_seconds: float = 0.0
-
-
-def _segments(stream: EventStream, cut_times=()):
-    """Split steps into runs ending at a measurement step (or MAX_SEGMENT, or a cut time)."""
-    n_meas = np.diff(stream.offsets)
-    ends = set(np.flatnonzero(n_meas > 0).tolist())
-    for tc in cut_times:
-        k = int(np.searchsorted(stream.t, tc, side="left"))
-        if k < len(stream):
-            ends.add(k)  # the step at or just after tc ends a segment
-    ends.add(len(stream) - 1)
-    start = 0
-    for end in sorted(ends):
-        while end - start + 1 > MAX_SEGMENT:
-            yield start, start + MAX_SEGMENT - 1
-            start += MAX_SEGMENT
-        if end >= start:
-            yield start, end
-        start = end + 1
-
-
-def segment_chunks(segments: np.ndarray, max_steps: int):
-    """``(a, b)``: runs ``segments[a:b]`` of whole segments (S, 2) covering at most ``max_steps`` steps each
-    (a longer segment alone), in order: what the compiled run does between two calls to the hooks."""
-    a = 0
-    while a < len(segments):
-        b = a + 1
-        while b < len(segments) and segments[b, 1] - segments[a, 0] + 1 <= max_steps:
-            b += 1
-        yield a, b
-        a = b
-
-
-def stream_commands(stream: EventStream, params: FastSLAMParams):
-    """The stream's commands times ``params.odometry_scale``, and its time steps, checked: ``(u (N, 2), dt (N,))``."""
-    u = np.asarray(stream.u, dtype=float) * np.asarray(params.odometry_scale, dtype=float)
-    dt = np.asarray(stream.dt, dtype=float)
-    if not (np.isfinite(u).all() and np.isfinite(dt).all()) or (dt < 0).any():
-        bad = np.flatnonzero(~np.isfinite(u).all(axis=1) | ~np.isfinite(dt) | (dt < 0))
-        raise ValueError(f"the event stream has non-finite commands or negative time steps ({len(bad)} step(s), "
-                         f"the first at step {bad[0]}, t = {stream.t[bad[0]]!r})")
-    return u, dt
-
-
-# ---------------------------------------------------------------- strategies and hooks of the run
-
-
-class MotionProposal:
-    """FastSLAM 1.0's proposal: step 1 samples the motion model; the weight is the sighting's likelihood."""
-
-    def move(self, run: "FilterRun", s: int, e: int, n_record: int):
-        """Step 1 through steps ``s..e``; returns the estimates ``(mean, best)`` of the first ``n_record`` steps."""
-        return propagate_segment(run.particles, run.u[s : e + 1], run.dt[s : e + 1], run.params.motion_noise,
-                                 run.rng, run.w, n_record=n_record)
-
-    def weigh(self, run: "FilterRun", s: int, e: int, sightings) -> np.ndarray | None:
-        """Log weights (M, n) that replace FastSLAM 1.0's (NaN: keep them); None: all of FastSLAM 1.0's."""
-        return None
-
-
-class ImprovedProposal(MotionProposal):
-    """FastSLAM 2.0's proposal: poses drawn given the sightings too (:mod:`fastslam_edu.landmark.proposal`)."""
-
-    def move(self, run, s, e, n_record):
-        run.x_start = run.particles.poses.copy()
-        return super().move(run, s, e, n_record)
-
-    def weigh(self, run, s, e, sightings):
-        if run.x_start is None:  # the poses were moved by a hook (a kidnap): no motion to condition on
-            return None
-        u, dt = run.u[s : e + 1], run.dt[s : e + 1]
-        x_bar, P = motion_prediction(run.x_start, *segment_motion(u, dt, run.params.motion_noise))
-        return sample_improved_poses(run.particles, sightings, x_bar, P, gate_chi2=run.gate.chi2,
-                                     rng=run.rng, min_count=2 if run.update_map else 1)
-
-
-class KnownPoses(MotionProposal):
-    """Mode ``"map"``: every particle at the groundtruth pose (``groundtruth_poses(t) -> (n, 3)``)."""
-
-    def __init__(self, groundtruth_poses):
-        if groundtruth_poses is None:
-            raise ValueError('mode="map" needs the groundtruth poses (groundtruth_poses=callable t -> (n, 3))')
-        self.groundtruth_poses = groundtruth_poses
-
-    def move(self, run, s, e, n_record):
-        truth = np.asarray(self.groundtruth_poses(run.stream.t[s : e + 1]), dtype=float)
-        run.particles.poses = np.tile(truth[-1], (len(run.particles), 1))
-        return truth[:n_record], truth[:n_record]
-
-
-class Gate:
-    """The outlier gate (``FastSLAMParams.gate_chi2``) and its escape (``gate_escape_s``), as one object.
-
-    ``chi2``: reject a sighting that every particle puts beyond :math:`d^2 >` ``chi2``
-    (None: no gate). Per landmark, the time of the first of its sightings that no
-    particle has explained since (``unexplained_since``, ``inf`` while they are
-    explained): once that is ``escape_s`` seconds ago, its sightings are applied
-    without the gate until one is explained again.
-    """
-
-    def __init__(self, chi2: float | None, escape_s: float | None, n_landmarks: int):
-        self.chi2 = chi2
-        self.escape_s = np.inf if escape_s is None else float(escape_s)
-        self.unexplained_since = np.full(n_landmarks, np.inf)
-
-    def escaped(self, t: float, landmarks) -> np.ndarray:
-        """Bool (n,): the sightings of ``landmarks`` (n,) at time ``t`` that skip the gate (:func:`gate_escapes`)."""
-        j = _landmark_indices(landmarks)
-        escape = np.empty(len(j), dtype=bool)
-        gate_escapes(float(t), j, self.unexplained_since, self.escape_s, escape)
-        return escape
-
-    def record(self, t: float, landmarks, explained) -> None:
-        """Note which sightings at ``t`` some particle explained (``explained`` (n,) bool; :func:`gate_record`)."""
-        gate_record(float(t), _landmark_indices(landmarks), np.asarray(explained, dtype=bool).reshape(-1),
-                    self.unexplained_since)
-
-
-def _landmark_indices(landmarks) -> np.ndarray:
-    """Landmark indices as the compiled kernels take them: int64, shape (n,)."""
-    return np.asarray(landmarks, dtype=np.int64).reshape(-1)
-
-
-class Hook:
-    """Something run alongside the filter, without changing it unless that is its purpose.
-
-    ``after_motion(run, s, e)`` is called after step 1 of each segment of steps
-    ``s..e``; ``after_resampling(run, parents, before)`` after step 3 at each
-    measurement step, with the indices drawn (``parents`` (M,): particle ``m``
-    is a copy of ``before``'s ``parents[m]``; None when :math:`N_\text{eff}` was
-    high enough) and the set as it was before; ``after_step(run, s, e)`` after the
-    whole step (with ``run.measured`` True when it had sightings); ``close(run)``
-    at the end. ``cut_times``: times at which a segment must end (a hook that acts
-    at a time).
-
-    ``chunk_steps``: a hook that uses only ``after_step`` and ``close`` sets it to the
-    number of steps it lets the compiled run make between two calls; the run then
-    stays compiled (:meth:`FilterRun.run_compiled`) and calls ``after_step(run, s, e)``
-    once per chunk of steps ``s..e`` (whole segments; ``run.measured``: whether step
-    ``e`` had sightings). None (the default): the hook needs the step-by-step Python loop.
-    """
-
-    cut_times: tuple = ()
-    chunk_steps: int | None = None
-
-    def after_motion(self, run: "FilterRun", s: int, e: int) -> None:
-        pass
-
-    def after_resampling(self, run: "FilterRun", parents: np.ndarray | None, before: ParticleSet) -> None:
-        pass
-
-    def after_step(self, run: "FilterRun", s: int, e: int) -> None:
-        pass
-
-    def close(self, run: "FilterRun") -> None:
-        pass
-
-
-class Kidnap(Hook):
-    """The write-up's kidnapped-robot test: at the first step at or after ``t`` every particle jumps to ``pose``."""
-
-    def __init__(self, t: float, pose):
-        self.t, self.pose = float(t), np.asarray(pose, dtype=float)
-        self.cut_times = (self.t,)
-
-    def after_motion(self, run, s, e):
-        k = int(np.searchsorted(run.stream.t, self.t, side="left"))
-        if s <= k <= e:  # segments end at the kidnap step
-            run.particles.poses[:] = self.pose
-            run.pose_mean[k : e + 1] = run.pose_best[k : e + 1] = self.pose
-            run.x_start = None
-
-
-class Monitor(Hook):
-    """Calls ``callback(t, particles, w)`` after every measurement step (after resampling).
-
-    With the step's time, the particle set as stored and the normalised weights
-    the step's estimate used: a way to look inside the filter (chapter "Is the
-    filter's uncertainty honest?") without changing it. The callback must not
-    modify them; its time counts in ``filter_seconds``. Served by the compiled run after each
-    measurement step (chunks of one segment).
-    """
-
-    chunk_steps = 1
-
-    def __init__(self, callback):
-        self.callback = callback
-
-    def after_step(self, run, s, e):
-        if run.measured:
-            self.callback(run.stream.t[e], run.particles, run.w)
-
-
-#: Steps the compiled run makes between two updates of the progress bar (a few hundredths of a second).
-PROGRESS_CHUNK_STEPS = 4096
-
-
-class ProgressBar(Hook):
-    """A tqdm progress bar over the steps, updated between compiled chunks of :data:`PROGRESS_CHUNK_STEPS` steps
-    (as fast as no bar)."""
-
-    chunk_steps = PROGRESS_CHUNK_STEPS
-
-    def __init__(self):
-        self.bar = None
-
-    def after_step(self, run, s, e):
-        if self.bar is None:
-            from tqdm.auto import tqdm
-
-            self.bar = tqdm(total=len(run.stream), unit="step", desc=f"FastSLAM M={len(run.particles)}",
-                            mininterval=0.5)
-        self.bar.update(e - s + 1)
-
-    def close(self, run):
-        if self.bar is not None:
-            self.bar.close()
-
-
-# ---------------------------------------------------------------- the whole run
 
 
 @dataclass
@@ -987,7 +430,8 @@ def run_fastslam(
     cut_times = [t for hook in hooks for t in hook.cut_times]
     with RunTimer() as timer:  # filter_seconds without the compilation of the kernels (compile_seconds)
         if run.compiled(hooks):  # the same steps in compiled chunks
-            run.run_compiled(np.array(list(_segments(stream, cut_times)), dtype=np.int64).reshape(-1, 2), hooks)
+            segments = np.array(list(measurement_segments(stream, cut_times)), dtype=np.int64).reshape(-1, 2)
+            run.run_compiled(segments, hooks)
         else:
             run_python_loop(run, cut_times)
         for hook in hooks:
@@ -998,7 +442,7 @@ def run_fastslam(
 def run_python_loop(run: FilterRun, cut_times) -> None:
     """Steps 1–4 segment by segment in Python, with every hook's calls (:class:`Hook`)."""
     stream, hooks = run.stream, run.hooks
-    for s, e in _segments(stream, cut_times):
+    for s, e in measurement_segments(stream, cut_times):
         run.measured = stream.offsets[e + 1] > stream.offsets[e]
         last = e if run.measured else e + 1  # a measurement step's estimate is taken after the update
         run.pose_mean[s:last], run.pose_best[s:last] = run.proposal.move(run, s, e, last - s)
@@ -1010,34 +454,10 @@ def run_python_loop(run: FilterRun, cut_times) -> None:
             hook.after_step(run, s, e)
 
 
-__all__ = [
-    "FastSLAMParams",
-    "ParticleSet",
-    "FastSLAMResult",
-    "propagate",
-    "propagate_segment",
-    "combined_heading",
-    "update_with_measurement",
-    "update_with_measurements",
-    "make_sightings",
-    "update_with_sightings",
-    "evidence_fractions",
-    "Gate",
-    "Hook",
-    "Kidnap",
-    "Monitor",
-    "ProgressBar",
-    "MotionProposal",
-    "ImprovedProposal",
-    "KnownPoses",
-    "FilterRun",
-    "start_run",
-    "resample_if_needed",
-    "draw_parents",
-    "combined_pose",
-    "combined_map",
-    "run_fastslam",
-    "run_python_loop",
-    "segment_chunks",
-    "PROGRESS_CHUNK_STEPS",
-]
+__all__ = ["FastSLAMParams", "FastSLAMResult", "FilterRun", "MODES", "PROPOSALS", "CHI2_2DOF_999", "CHI2_2DOF_1E6",
+           "start_run", "run_fastslam", "run_python_loop"]
+
+#: Names of other modules that files owned elsewhere read from here (smoother.py, multi_robot.py, ekf_slam.py:
+#: evidence_fractions, stream_commands, Gate; app/cli.py: ProgressBar; chapter 8: MAX_SEGMENT; chapter 9:
+#: evidence_fractions), kept importable from this module.
+REEXPORTED = (evidence_fractions, stream_commands, Gate, ProgressBar, MAX_SEGMENT)

@@ -19,8 +19,9 @@ where each line is computed::
 
 What real data adds to the table (see :mod:`fastslam_edu.landmark.fastslam`): the outlier
 gate (a sighting that *no* particle explains, :func:`explains`, is set aside), its
-escape (:func:`gate_escapes`, :func:`gate_record`), and tempered likelihoods (the log
-weight grows by :math:`\\beta \\log \\mathcal N`, :func:`tempering_exponents`).
+escape (:func:`fastslam_edu.landmark.gate.gate_escapes`, :func:`fastslam_edu.landmark.gate.gate_record`), and
+tempered likelihoods (the log weight grows by :math:`\\beta \\log \\mathcal N`,
+:func:`fastslam_edu.landmark.evidence.tempering_exponents`).
 
 The whole run: :func:`run_segments` chains line 4 over each run of odometry steps
 (:func:`sample_segment`) and steps 2–4 at each measurement step (:func:`measure_instant`:
@@ -55,6 +56,8 @@ from fastslam_edu.core.angles import wrap_one
 from fastslam_edu.core.ekf import ekf_initialise, ekf_innovation, ekf_update
 from fastslam_edu.core.resampling import (inverse_cdf_unchecked, roulette_indices, stratified_positions,
                                           systematic_positions)
+from fastslam_edu.landmark.evidence import tempering_exponents
+from fastslam_edu.landmark.gate import gate_escapes, gate_record
 from fastslam_edu.landmark.proposal import predict_into, sample_improved, segment_motion_into
 
 
@@ -209,7 +212,7 @@ def standard_normals(rng, out):
     Each particle's normals are consecutive in the random stream (its whole segment, step by
     step), and stored by step, the order in which :func:`sample_segment` reads them. Each call
     unpacks the Generator (a fixed cost), so small segments are left to numpy
-    (:func:`fastslam_edu.landmark.fastslam.draw_normals`).
+    (:func:`fastslam_edu.landmark.particle_set.draw_normals`).
     """
     n_steps, k, m_count = out.shape
     flat = out.reshape(-1)
@@ -375,42 +378,7 @@ def pose_covariance(poses, w):
     return cov
 
 
-# ---------------------------------------------------------------- what the run remembers of past sightings
-
-
-@njit(cache=True)
-def gate_escapes(t, j, unexplained_since, escape_s, escape):
-    """``escape[i]``: sighting ``i`` (of landmark ``j[i]``, at time ``t``) skips the gate.
-
-    True once the landmark's sightings have been unexplained since
-    ``unexplained_since[j]`` for ``escape_s`` seconds or more (``inf`` while explained).
-    """
-    for i in range(j.shape[0]):
-        escape[i] = t - unexplained_since[j[i]] >= escape_s
-
-
-@njit(cache=True)
-def gate_record(t, j, explained, unexplained_since):
-    """Note which sightings at ``t`` some particle explained: ``inf`` for those, else the first unexplained time."""
-    since = unexplained_since[j]  # read before writing: a landmark may be seen twice in one instant
-    for i in range(j.shape[0]):
-        unexplained_since[j[i]] = math.inf if explained[i] else min(since[i], t)
-
-
-@njit(cache=True)
-def tempering_exponents(t, j, last_seen, tau, beta):
-    """``beta[i] = min(1, (t - last_seen[j[i]]) / tau)``, then ``last_seen[j] = t``; ``tau <= 0``: all 1 (textbook)."""
-    if tau <= 0.0:
-        beta[:] = 1.0
-        return
-    for i in range(j.shape[0]):
-        beta[i] = min(1.0, (t - last_seen[j[i]]) / tau)
-    for i in range(j.shape[0]):
-        last_seen[j[i]] = t
-
-
 # ---------------------------------------------------------------- step 3: resampling, compiled
-
 
 RESAMPLER_CODES = {"systematic": 0, "stratified": 1, "roulette": 2, "multinomial": 2}
 

@@ -16,7 +16,7 @@ logw       (M,) array              :math:`\\log w^{[m]}`
   :math:`\\lceil \\log_2 N \\rceil + 1` nodes: :math:`O(M \\log N)` per measurement;
 * the EKF arithmetic itself is the array engine's: the few landmarks measured
   at an instant are read out of the trees (:func:`~fastslam_edu.landmark.tree.gather`),
-  updated by :func:`fastslam_edu.landmark.fastslam.update_with_sightings` (the compiled
+  updated by :func:`fastslam_edu.landmark.particle_set.update_with_sightings` (the compiled
   per-particle step), and written back into new trees
   (:func:`~fastslam_edu.landmark.tree.set_each`).
 
@@ -42,14 +42,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.landmark.fastslam import (
-    FastSLAMParams,
-    FastSLAMResult,
-    ParticleSet,
-    make_sightings,
-    run_fastslam,
-    update_with_sightings,
-)
+from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, run_fastslam
+from fastslam_edu.landmark.particle_set import ParticleSet, make_sightings, update_with_sightings
 from fastslam_edu.landmark.tree import LandmarkTree, gather, set_each, trees_to_arrays
 from fastslam_edu.core.weights import weights_from_log
 
@@ -119,7 +113,7 @@ class TreeParticleSet:
         return update_trees_with_sightings(self, sightings, gate_chi2=gate_chi2, update_map=update_map)
 
     def to_particle_set(self) -> ParticleSet:
-        """The same particles as a dense :class:`~fastslam_edu.landmark.fastslam.ParticleSet` (:math:`O(MN)`)."""
+        """The same particles as a dense :class:`~fastslam_edu.landmark.particle_set.ParticleSet` (:math:`O(MN)`)."""
         mu, sigma, seen, count = trees_to_arrays(self.trees)
         return ParticleSet(poses=self.poses.copy(), mu=mu, sigma=sigma, seen=seen, logw=self.logw.copy(),
                            count=count)
@@ -130,14 +124,14 @@ class TreeParticleSet:
 
 def update_trees_with_sightings(particles: TreeParticleSet, sightings, *, gate_chi2: float | None = None,
                                 update_map: bool = True) -> np.ndarray:
-    """Step 2 for the sightings of one instant (:func:`~fastslam_edu.landmark.fastslam.make_sightings`).
+    """Step 2 for the sightings of one instant (:func:`~fastslam_edu.landmark.particle_set.make_sightings`).
 
     1. **Read** the :math:`n' \\le n` distinct landmarks measured out of every
        particle's tree (:func:`~fastslam_edu.landmark.tree.gather`,
-       :math:`O(M n' \\log N)`) into a small :class:`~fastslam_edu.landmark.fastslam.ParticleSet`
+       :math:`O(M n' \\log N)`) into a small :class:`~fastslam_edu.landmark.particle_set.ParticleSet`
        of :math:`n'` landmarks, which shares ``poses`` and ``logw`` with ``particles``.
     2. **Update** it with the array engine's own
-       :func:`~fastslam_edu.landmark.fastslam.update_with_sightings` — initialisation,
+       :func:`~fastslam_edu.landmark.particle_set.update_with_sightings` — initialisation,
        EKF update, weights, robust gate: the same numbers, by construction.
     3. **Write back** each landmark that changed in a particle (mean, covariance,
        seen or count) by path copying (:func:`~fastslam_edu.landmark.tree.set_each`,

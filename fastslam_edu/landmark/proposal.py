@@ -295,7 +295,7 @@ def sample_improved_poses(particles, sightings, x_bar, P, *, gate_chi2, rng, min
     for each particle moved by sighting ``j``, NaN where the proposal was not used
     (FastSLAM 1.0's weight applies there). FastSLAM 1.0's update of the same
     sightings then takes them (``proposal_loglik`` of
-    :func:`fastslam_edu.landmark.fastslam.update_with_measurements`), with the gate and the
+    :func:`fastslam_edu.landmark.particle_set.update_with_measurements`), with the gate and the
     exponents :math:`\\beta` as for its own.
     """
     from fastslam_edu.landmark.fastslam_step import Sightings  # (fastslam_step runs this module's kernels)

@@ -505,7 +505,7 @@ def trees_to_arrays(trees: Sequence[LandmarkTree]) -> tuple[np.ndarray, np.ndarr
 
     Unstored landmarks get ``mu = 0``, ``sigma = I``, ``count = 0`` (the array
     engine's initial values), so the result is a valid
-    :class:`fastslam_edu.landmark.fastslam.ParticleSet` map.
+    :class:`fastslam_edu.landmark.particle_set.ParticleSet` map.
     """
     N, _ = _check_trees(trees, "trees_to_arrays")
     M = len(trees)

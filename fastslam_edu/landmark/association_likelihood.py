@@ -1,0 +1,115 @@
+"""The likelihood of one sighting given one landmark of one particle, with the drift of the particle's pose since
+the landmark was last seen, and the likelihood :math:`p_0` of a landmark never seen before (Montemerlo et al. 2003;
+*Probabilistic Robotics* §13.8). See :mod:`fastslam_edu.landmark.association`.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from fastslam_edu.core.ekf import LOG_2PI, ekf_innovation, expected_measurement
+
+
+# ---------------------------------------------------------------- one particle, one sighting
+
+
+@njit(cache=True)
+def new_landmark_loglik(R, d0_sq):
+    """:math:`\\log p_0`: a fresh landmark's Gaussian (:math:`Q = 2R`) at squared Mahalanobis distance ``d0_sq``."""
+    det_2r = 4.0 * (R[0, 0] * R[1, 1] - 0.25 * (R[0, 1] + R[1, 0]) ** 2)
+    return -0.5 * d0_sq - LOG_2PI - 0.5 * math.log(det_2r)
+
+
+@njit(cache=True)
+def pose_jacobian(pose, mx, my):
+    """:math:`H_x = \\partial h/\\partial x` (2, 3) of the range and bearing of a landmark at ``(mx, my)``, as
+    ``(j0, j1, j2, k0, k1, k2)``: the range row, then the bearing row. A landmark moving by :math:`\\delta` and the
+    robot moving by :math:`-\\delta` look the same, so the position columns are :math:`-H` of
+    :func:`fastslam_edu.core.ekf.expected_measurement`; turning the robot by :math:`\\delta\\theta` turns the
+    bearing by :math:`-\\delta\\theta`."""
+    _, _, h00, h01, h10, h11 = expected_measurement(pose, (mx, my))
+    return -h00, -h01, 0.0, -h10, -h11, -1.0
+
+
+@njit(cache=True)
+def pose_term(pose, mx, my, cloud):
+    """:math:`H_x P H_x^\\top` (``a, b, d``: entries 00, 01, 11) for a landmark at ``(mx, my)``: the pose
+    covariance ``cloud`` (3, 3) of the particle set carried into measurement space."""
+    j0, j1, j2, k0, k1, k2 = pose_jacobian(pose, mx, my)
+    a = b = d = 0.0
+    for u, cu, ku in ((0, j0, k0), (1, j1, k1), (2, j2, k2)):
+        for v, cv, kv in ((0, j0, k0), (1, j1, k1), (2, j2, k2)):
+            a += cu * cloud[u, v] * cv
+            b += cu * cloud[u, v] * kv
+            d += ku * cloud[u, v] * kv
+    return a, b, d
+
+
+@njit(cache=True, inline="always")
+def drift_variances(unseen_s, rules):
+    """The variances the pose drifts by over ``unseen_s`` seconds, at most ``rules.drift_cap_s``:
+    :math:`(\\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\min(\\Delta t, T)` [m² per axis, rad²]."""
+    unseen_s = min(unseen_s, rules.drift_cap_s)
+    return rules.drift_xy ** 2 * unseen_s, rules.drift_theta ** 2 * unseen_s
+
+
+@njit(cache=True)
+def drift_covariance(cloud, unseen_s, rules):
+    """:math:`P`: ``cloud`` (3, 3) plus the drift of the pose over ``unseen_s`` seconds,
+    :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\min(\\Delta t, T)`
+    (:func:`drift_variances`)."""
+    P = cloud.copy()
+    v_xy, v_theta = drift_variances(unseen_s, rules)
+    P[0, 0] += v_xy
+    P[1, 1] += v_xy
+    P[2, 2] += v_theta
+    return P
+
+
+@njit(cache=True)
+def innovation_with_pose(pose, z, R, mu, sigma, P, rules):
+    """The innovation of one sighting and landmark with the pose covariance ``P`` (3, 3) added:
+    ``(nu0, nu1, q00, q01, q11)``, :math:`\\nu` and :math:`Q + H_x P H_x^\\top` (its range variance scaled by
+    ``rules.range_scale`` squared)."""
+    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, ll = ekf_innovation(pose, z, R, mu, sigma)
+    a, b, d = pose_term(pose, mu[0], mu[1], P)
+    return nu0, nu1, q00 + a - (1.0 - rules.range_scale ** 2) * R[0, 0], q01 + b, q11 + d
+
+
+@njit(cache=True)
+def association_loglik(pose, z, R, mu, sigma, cloud, unseen_s, rules):
+    """What the association decides by, for one landmark: ``(loglik, d2)`` of the sighting with
+    :math:`Q + H_x P H_x^\\top`, the pose uncertainty added to the innovation covariance.
+
+    :math:`P` is ``cloud`` (the particle set's covariance, scaled; zeros: table 13.1's) plus the drift
+    the particle's pose may have made relative to the landmark since it was last seen, ``unseen_s``
+    seconds ago (:func:`drift_covariance`: ``rules.drift_xy``, ``rules.drift_theta`` per √s, for at most
+    ``rules.drift_cap_s``).
+    """
+    nu0, nu1, q00, q01, q11 = innovation_with_pose(pose, z, R, mu, sigma, drift_covariance(cloud, unseen_s, rules),
+                                                   rules)
+    det_q = q00 * q11 - q01 * q01
+    d2 = (q11 * nu0 * nu0 - 2.0 * q01 * nu0 * nu1 + q00 * nu1 * nu1) / det_q
+    return -0.5 * d2 - LOG_2PI - 0.5 * math.log(det_q), d2
+
+
+@njit(cache=True)
+def best_landmark(P, m, z, R, taken, cloud, t, rules):
+    """The most likely landmark of particle ``m`` for sighting ``z`` at time ``t``: ``(k, loglik, d2)``
+    (:func:`association_loglik`); ``(-1, -inf, inf)`` if it holds none. Landmarks with ``taken[k]`` set
+    (mutual exclusion) are skipped.
+    """
+    best, best_ll, best_d2 = -1, -math.inf, math.inf
+    for k in range(P.n[m]):
+        if taken[k]:
+            continue
+        ll, d2 = association_loglik(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k], rules)
+        if ll > best_ll:
+            best, best_ll, best_d2 = k, ll, d2
+    return best, best_ll, best_d2
+
+
+__all__ = ["new_landmark_loglik", "pose_jacobian", "pose_term", "drift_variances", "drift_covariance",
+           "innovation_with_pose", "association_loglik", "best_landmark"]

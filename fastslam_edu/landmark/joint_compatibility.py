@@ -1,0 +1,190 @@
+"""Joint compatibility: the sightings of one instant decided together (Neira and Tardós 2001).
+
+Every hypothesis (each sighting a landmark or new, no landmark twice) is scored by the joint Gaussian of its
+innovations, correlated by the pose error the sightings share. See :mod:`fastslam_edu.landmark.association`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from fastslam_edu.core.ekf import LOG_2PI
+from fastslam_edu.landmark.association_likelihood import (drift_covariance, drift_variances, innovation_with_pose,
+                                                          new_landmark_loglik, pose_jacobian)
+
+#: More joint hypotheses than this in one instant (each sighting's candidates and "new", multiplied): the
+#: instant is decided one sighting at a time instead (:func:`choose_landmarks`).
+JOINT_MAX_HYPOTHESES = 4096
+
+
+@njit(cache=True)
+def joint_slots(P, m, pose, cloud, instant, rules, ll, slot):
+    """The jointly most likely association of one instant's sightings (joint compatibility, Neira and Tardós
+    2001), written into ``slot`` (n,); False (``slot`` untouched) if there are more than ``JOINT_MAX_HYPOTHESES``
+    hypotheses. ``instant = (z (n, 2), R (n, 2, 2), t)``; ``ll`` (n, K) from :func:`choose_landmarks`.
+
+    Sighting :math:`i`'s candidates are the landmarks with ``ll[i, k] > -inf``, and a new landmark
+    (:math:`p_0`). The sightings of one instant share the particle's pose error: the part of the drift that
+    every candidate has in common, :math:`P_c` (``cloud`` plus the drift over the shortest time any candidate
+    was unseen, :func:`drift_covariance`), correlates their innovations,
+    :math:`S = \\mathrm{blockdiag}(D_i) + H_x P_c H_x^\\top`, with :math:`D_i` the rest of each innovation's
+    covariance (its landmark, :math:`R`, and its own further drift: :func:`pair_information`). Each hypothesis
+    (each sighting a free candidate or new, each landmark at most once) is scored by
+    :math:`\\log\\mathcal N(\\nu; 0, S) + \\sum_{\\text{new}} \\log p_0` (:func:`best_joint_hypothesis`). A
+    rotation of the pose that lines every sighting up with a neighbour of its landmark is then one error, paid
+    once, not an independent chance per sighting.
+    """
+    n, K = ll.shape
+    count, unseen = 1, math.inf
+    for i in range(n):
+        c = 1
+        for k in range(K):
+            if ll[i, k] > -math.inf:
+                c += 1
+                unseen = min(unseen, instant[2] - P.last_t[m, k])
+        count *= c
+        if count > JOINT_MAX_HYPOTHESES:
+            return False
+    info = pair_information(P, m, pose, instant, unseen, rules, ll)
+    p0 = np.empty(n)
+    for i in range(n):
+        p0[i] = new_landmark_loglik(instant[1][i], rules.new_chi2)
+    best_joint_hypothesis(info, ll, p0, drift_covariance(cloud, unseen, rules), slot)
+    return True
+
+
+@njit(cache=True)
+def pair_information(P, m, pose, instant, unseen, rules, ll):
+    """What each candidate pair ``(i, k)`` (``ll[i, k] > -inf``) adds to a joint hypothesis
+    (:func:`joint_loglik`): (n, K, 14), :math:`\\nu^\\top D^{-1}\\nu`, :math:`H_x^\\top D^{-1}\\nu` (3),
+    :math:`H_x^\\top D^{-1} H_x` (3×3, row-major) and :math:`\\log\\det D`.
+
+    :math:`D` is the innovation covariance of :func:`innovation_with_pose` with the drift the landmark was
+    unseen for beyond the instant's common ``unseen`` seconds (:func:`joint_slots`): with the common part
+    :math:`H_x P_c H_x^\\top` added back it is the covariance the landmark is decided by alone
+    (:func:`association_loglik`)."""
+    z, R, t = instant
+    n, K = ll.shape
+    info = np.zeros((n, K, 14))
+    common_xy, common_theta = drift_variances(unseen, rules)
+    excess = np.zeros((3, 3))  # the landmark's own drift beyond the common part
+    for i in range(n):
+        for k in range(K):
+            if ll[i, k] == -math.inf:
+                continue
+            own_xy, own_theta = drift_variances(t - P.last_t[m, k], rules)
+            excess[0, 0] = excess[1, 1] = own_xy - common_xy
+            excess[2, 2] = own_theta - common_theta
+            nu0, nu1, d00, d01, d11 = innovation_with_pose(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], excess, rules)
+            det = d00 * d11 - d01 * d01
+            i00, i01, i11 = d11 / det, -d01 / det, d00 / det  # D⁻¹
+            j0, j1, j2, k0, k1, k2 = pose_jacobian(pose, P.mu[m, k, 0], P.mu[m, k, 1])
+            hr, hb = (j0, j1, j2), (k0, k1, k2)  # the rows of H_x: range, bearing
+            v0, v1 = i00 * nu0 + i01 * nu1, i01 * nu0 + i11 * nu1  # D⁻¹ν
+            info[i, k, 0] = nu0 * v0 + nu1 * v1
+            for u in range(3):
+                info[i, k, 1 + u] = hr[u] * v0 + hb[u] * v1
+                for v in range(3):
+                    info[i, k, 4 + 3 * u + v] = (hr[u] * (i00 * hr[v] + i01 * hb[v])
+                                                 + hb[u] * (i01 * hr[v] + i11 * hb[v]))
+            info[i, k, 13] = math.log(det)
+    return info
+
+
+@njit(cache=True)
+def best_joint_hypothesis(info, ll, p0, Pc, slot):
+    """Every joint hypothesis, scored (:func:`joint_slots`); the best is written into ``slot`` (n,) (-1: new).
+
+    The hypotheses are counted like an odometer: sighting 0's choice turns fastest, through its candidates
+    (``ll[i, k] > -inf``) and "new" (-1); a hypothesis that gives one landmark two sightings is skipped.
+    ``info`` from :func:`pair_information`, ``p0`` (n,) :math:`\\log p_0`, ``Pc`` (3, 3) the common pose
+    covariance."""
+    n, K = ll.shape
+    choice = np.full(n, -1, dtype=np.int64)
+    used = np.zeros(K, dtype=np.bool_)
+    total = np.zeros(14)
+    best = -math.inf
+    while True:
+        # (np.int64(0), not 0: a literal 0 would make numba compile joint_loglik a second time, for the constant)
+        ok, score, n_assigned = True, 0.0, np.int64(0)
+        used[:] = False
+        total[:] = 0.0
+        for i in range(n):
+            k = choice[i]
+            if k < 0:
+                score += p0[i]
+            elif used[k]:
+                ok = False
+                break
+            else:
+                used[k] = True
+                for c in range(total.shape[0]):  # (number by number: see copy_row)
+                    total[c] += info[i, k, c]
+                n_assigned += 1
+        if ok:
+            score += joint_loglik(total, n_assigned, Pc)
+            if score > best:
+                best = score
+                for c in range(n):
+                    slot[c] = choice[c]
+        i = 0  # the next hypothesis: turn the odometer
+        while i < n:
+            k = choice[i] + 1
+            while k < K and ll[i, k] == -math.inf:
+                k += 1
+            if k < K:
+                choice[i] = k
+                break
+            choice[i] = -1
+            i += 1
+        if i == n:
+            return
+
+
+@njit(cache=True)
+def joint_loglik(total, n_assigned, Pc):
+    """:math:`\\log\\mathcal N(\\nu; 0, S)` of ``n_assigned`` stacked sightings, :math:`S = D + H_x P_c H_x^\\top`
+    (:math:`D` block-diagonal), from the sums over the sightings of :func:`pair_information`'s rows, ``total``
+    (14,): :math:`a = \\sum \\nu_i^\\top D_i^{-1}\\nu_i`, :math:`b = \\sum H_i^\\top D_i^{-1}\\nu_i` (3),
+    :math:`G = \\sum H_i^\\top D_i^{-1} H_i` (3×3) and :math:`\\sum\\log\\det D_i`. With :math:`A = I + P_c G`
+    (the Woodbury identity and the matrix determinant lemma, so that only 3×3 matrices are solved):
+    :math:`\\nu^\\top S^{-1}\\nu = a - b^\\top A^{-1} P_c b` and :math:`\\log\\det S = \\sum\\log\\det D_i + \\log\\det A`."""
+    if n_assigned == 0:
+        return 0.0
+    # A = I + P_c G and c = P_c b, as scalars: this runs for every hypothesis, and makes no array
+    a00, a01, a02 = 1.0 + _pc_g(Pc, total, 0, 0), _pc_g(Pc, total, 0, 1), _pc_g(Pc, total, 0, 2)
+    a10, a11, a12 = _pc_g(Pc, total, 1, 0), 1.0 + _pc_g(Pc, total, 1, 1), _pc_g(Pc, total, 1, 2)
+    a20, a21, a22 = _pc_g(Pc, total, 2, 0), _pc_g(Pc, total, 2, 1), 1.0 + _pc_g(Pc, total, 2, 2)
+    c0, c1, c2 = _pc_b(Pc, total, 0), _pc_b(Pc, total, 1), _pc_b(Pc, total, 2)
+    det_a = det3_of(a00, a01, a02, a10, a11, a12, a20, a21, a22)
+    # A⁻¹ P_c b by Cramer's rule: unknown j is the determinant of A with column j replaced by c, over det A
+    x0 = det3_of(c0, a01, a02, c1, a11, a12, c2, a21, a22) / det_a
+    x1 = det3_of(a00, c0, a02, a10, c1, a12, a20, c2, a22) / det_a
+    x2 = det3_of(a00, a01, c0, a10, a11, c1, a20, a21, c2) / det_a
+    quad = total[0] - (total[1] * x0 + total[2] * x1 + total[3] * x2)
+    return -0.5 * quad - n_assigned * LOG_2PI - 0.5 * (total[13] + math.log(det_a))
+
+
+@njit(cache=True, inline="always")
+def _pc_g(Pc, total, u, v):
+    """Entry ``(u, v)`` of :math:`P_c G`, with :math:`G` row-major in ``total[4:13]``."""
+    return Pc[u, 0] * total[4 + v] + Pc[u, 1] * total[7 + v] + Pc[u, 2] * total[10 + v]
+
+
+@njit(cache=True, inline="always")
+def _pc_b(Pc, total, u):
+    """Entry ``u`` of :math:`P_c b`, with :math:`b` in ``total[1:4]``."""
+    return Pc[u, 0] * total[1] + Pc[u, 1] * total[2] + Pc[u, 2] * total[3]
+
+
+@njit(cache=True, inline="always")
+def det3_of(a00, a01, a02, a10, a11, a12, a20, a21, a22):
+    """The determinant of a 3×3 matrix given by its entries, row by row (cofactors along the first row)."""
+    return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
+
+
+__all__ = ["JOINT_MAX_HYPOTHESES", "joint_slots", "pair_information", "best_joint_hypothesis", "joint_loglik",
+           "det3_of"]

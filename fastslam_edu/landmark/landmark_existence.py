@@ -1,0 +1,134 @@
+"""Existence and retirement of landmarks with unknown correspondences: adding and removing a particle's landmarks,
+negative evidence (the log odds that a landmark is real), and the hand-over of a retired landmark's identity.
+See :mod:`fastslam_edu.landmark.association`, step 3.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from fastslam_edu.core.ekf import ekf_initialise, expected_measurement
+
+
+@njit(cache=True)
+def add_landmark(P, m, z, R, ident, t):
+    """A new landmark in particle ``m`` from sighting ``z`` (lines 6–8 of table 13.1); its slot, or -1 if full."""
+    k = P.n[m]
+    if k >= P.mu.shape[1]:
+        return -1
+    ekf_initialise(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k])
+    P.ident[m, k] = ident
+    P.seen[m, k] = 1
+    P.missed[m, k] = 0
+    P.evidence[m, k] = 1.0
+    P.last_t[m, k] = t
+    P.first_t[m, k] = t
+    P.n[m] = k + 1
+    return k
+
+
+@njit(cache=True)
+def remove_landmark(P, m, k):
+    """Remove landmark ``k`` of particle ``m``: the last landmark takes its slot."""
+    last = P.n[m] - 1
+    if k != last:
+        for a in range(2):  # (number by number: an array assignment compiles numba's shape check, see copy_row)
+            P.mu[m, k, a] = P.mu[m, last, a]
+            for b in range(2):
+                P.sigma[m, k, a, b] = P.sigma[m, last, a, b]
+        P.ident[m, k] = P.ident[m, last]
+        P.seen[m, k] = P.seen[m, last]
+        P.missed[m, k] = P.missed[m, last]
+        P.evidence[m, k] = P.evidence[m, last]
+        P.log_odds[m, k] = P.log_odds[m, last]
+        P.last_t[m, k] = P.last_t[m, last]
+        P.first_t[m, k] = P.first_t[m, last]
+    P.ident[m, last] = -1
+    P.n[m] = last
+
+
+@njit(cache=True)
+def in_view(pose, mu, rules):
+    """Whether a landmark at ``mu`` is inside the camera's field of view and range from ``pose``."""
+    r, phi, _, _, _, _ = expected_measurement(pose, mu)
+    return rules.min_range <= r <= rules.max_range and abs(phi) <= rules.fov
+
+
+@njit(cache=True)
+def existence_log_odds(log_odds, seen, rules):
+    """The existence log odds of a landmark after one instant in view: seen (``True``) or missed.
+
+    :math:`L \\mathrel{+}= \\log\\frac{p_D}{p_F}` for a sighting, :math:`\\log\\frac{1-p_D}{1-p_F}` (< 0) for a miss,
+    from :math:`L = 0` (even odds) before the first sighting; clamped above at ``log_odds_cap_sightings``' worth,
+    so that a landmark seen for a long time is still removed after a few dozen misses once it has gone (a
+    copy that a newer landmark has replaced): :math:`p_D` = 0.3, :math:`p_F` = 0.05 give +1.79 and -0.31.
+    """
+    if seen:
+        return min(log_odds + rules.log_odds_seen, rules.log_odds_cap)
+    return log_odds + rules.log_odds_missed
+
+
+@njit(cache=True)
+def negative_evidence(P, m, taken, rules):
+    """Count a miss for every landmark of particle ``m`` in view but not taken at this instant; remove the
+    provisional ones whose existence log odds (:func:`existence_log_odds`) fall below zero: more likely clutter than
+    real. A confirmed landmark whose log odds fall below zero is retired by :func:`retire_landmarks`."""
+    k = np.int64(0)  # (not 0: see retire_landmarks)
+    while k < P.n[m]:
+        if not taken[k] and in_view(P.poses[m], P.mu[m, k], rules):
+            P.missed[m, k] += 1
+            P.log_odds[m, k] = existence_log_odds(P.log_odds[m, k], False, rules)
+            if P.log_odds[m, k] < 0.0 and P.evidence[m, k] < rules.n_confirm:
+                taken[k] = taken[P.n[m] - 1]  # the last landmark moves into slot k
+                remove_landmark(P, m, k)
+                continue
+        k += 1
+
+
+@njit(cache=True)
+def heir_of(P, m, a, rules):
+    """The landmark of particle ``m`` that continues the identity of landmark ``a``: the nearest one made after
+    ``a``, within ``rules.inherit_radius`` metres; -1 if there is none."""
+    best, best_d = -1, rules.inherit_radius
+    for b in range(P.n[m]):
+        if b == a or P.first_t[m, b] <= P.first_t[m, a]:
+            continue  # older than a: another landmark
+        d = math.hypot(P.mu[m, a, 0] - P.mu[m, b, 0], P.mu[m, a, 1] - P.mu[m, b, 1])
+        if d <= best_d:
+            best, best_d = b, d
+    return best
+
+
+@njit(cache=True)
+def retire_landmarks(P, m, rules, renames, q):
+    """Remove the confirmed landmarks of particle ``m`` whose existence log odds fell below zero; each passes
+    its identity to its heir (:func:`heir_of`), if it has one.
+
+    A landmark stops being seen where the particle expects it when its pose drifted while the landmark was out of
+    view: the sightings, further than :math:`d_0` from it, start a copy nearby, which takes them, and the
+    original collects misses. The copy is the same landmark seen again: it continues the original's identity
+    (and counts its sightings), so that the particle's association history reads one landmark, not two. It keeps
+    its own evidence: a copy still provisional stays out of the map until its own sightings confirm it. Each
+    hand-over is written to ``renames`` (C, 4) as ``(q, m, the heir's old identity, the identity it takes)``;
+    ``renames[0, 0]`` counts the rows, from row 1 (:func:`best_history` reads them).
+    """
+    k = np.int64(0)  # (not 0: a literal would make numba compile heir_of and remove_landmark twice)
+    while k < P.n[m]:
+        if P.log_odds[m, k] >= 0.0:
+            k += 1
+            continue
+        b = heir_of(P, m, k, rules)
+        if b >= 0:
+            row = renames[0, 0] + 1
+            renames[row, 0], renames[row, 1], renames[row, 2], renames[row, 3] = q, m, P.ident[m, b], P.ident[m, k]
+            renames[0, 0] = row
+            P.ident[m, b] = P.ident[m, k]
+            P.seen[m, b] += P.seen[m, k]
+        remove_landmark(P, m, k)
+
+
+__all__ = ["add_landmark", "remove_landmark", "in_view", "existence_log_odds", "negative_evidence", "heir_of",
+           "retire_landmarks"]
