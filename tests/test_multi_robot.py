@@ -25,7 +25,8 @@ from fastslam_edu.landmark.multi_robot import (
     compose_jacobian,
     smooth_robots,
 )
-from fastslam_edu.landmark.smoother import BEST_ESTIMATE, measurement_residuals, smooth
+from fastslam_edu.landmark.smoother import BEST_ESTIMATE, smooth
+from fastslam_edu.landmark.smoother_factors import measurement_residuals
 
 NOISE = MotionNoise(sigma_v=0.01, sigma_omega=0.02)
 
@@ -70,11 +71,11 @@ def test_robot_sighting_jacobians_match_finite_differences():
 def test_keyframe_offsets_carry_the_keyframe_to_the_sighting_time():
     """x̂(t) = x̂_k ⊕ δ: the dead-reckoned pose at any time inside the log, from the keyframe at or before it."""
     from fastslam_edu.landmark.multi_robot import keyframe_offsets
-    from fastslam_edu.landmark.smoother import dead_reckoning, keyframe_steps
+    from fastslam_edu.landmark.smoother_factors import dead_reckon_stream, keyframe_steps
 
     data, logs, streams, _ = _team(2, n_robots=1, duration=30.0)
     s = streams[1]
-    path, keys = dead_reckoning(s, s.x0), keyframe_steps(s)
+    path, keys = dead_reckon_stream(s, s.x0), keyframe_steps(s)
     t = np.random.default_rng(0).uniform(s.t[0], s.t[-1], 50)
     k, delta = keyframe_offsets(s, path, keys, t)
     assert np.all(s.t[keys[k]] <= t) and np.all(np.abs(delta[:, :2]).max(axis=1) < 0.5)  # keyframes ≤ 1 s apart

@@ -15,24 +15,12 @@ from fastslam_edu.evaluation.metrics import align_se2, landmark_errors_aligned
 from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.core.se2 import relative
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.landmark.smoother import (
-    BEST_ESTIMATE,
-    CALIBRATION_NAMES,
-    ODOMETRY_CALIBRATION,
-    PRIOR_STD,
-    OdometryModel,
-    SolverSettings,
-    block_tridiagonal_inverse_diagonal,
-    dead_reckoning,
-    lagged_commands,
-    keyframe_steps,
-    measurement_residuals,
-    odometry_factors,
-    odometry_residuals,
-    sighting_weights,
-    smooth,
-    whitening,
-)
+from fastslam_edu.landmark.smoother import (BEST_ESTIMATE, CALIBRATION_NAMES, ODOMETRY_CALIBRATION, PRIOR_STD,
+                                            SolverSettings, smooth)
+from fastslam_edu.landmark.smoother_factors import (OdometryModel, dead_reckon_stream, lagged_commands,
+                                                    keyframe_steps, measurement_residuals, odometry_factors,
+                                                    odometry_residuals, sighting_weights, whitening)
+from fastslam_edu.landmark.smoother_laplace import block_tridiagonal_inverse_diagonal
 from streams import path_rmse, simulate
 from fastslam_edu.datasets.events import event_stream
 
@@ -77,7 +65,7 @@ def test_measurement_jacobians_match_finite_differences():
 
 def test_odometry_residual_is_zero_on_the_dead_reckoned_path():
     _, _, stream = simulate(0, duration=20.0)
-    path = dead_reckoning(stream, stream.x0)
+    path = dead_reckon_stream(stream, stream.x0)
     keys = keyframe_steps(stream)
     delta, _ = odometry_factors(stream, path, keys, NOISE)
     e, _, _ = odometry_residuals(path[keys[:-1]], path[keys[1:]], delta)
@@ -86,7 +74,7 @@ def test_odometry_residual_is_zero_on_the_dead_reckoned_path():
 
 def test_dead_reckoning_is_the_motion_model_without_noise():
     _, _, stream = simulate(1, duration=10.0)
-    path = dead_reckoning(stream, stream.x0, odometry_scale=(1.1, 0.9))
+    path = dead_reckon_stream(stream, stream.x0, odometry_scale=(1.1, 0.9))
     u = stream.u * [1.1, 0.9]
     ref = move_segment(stream.x0[None], u, stream.dt, MotionNoise(), np.zeros((1, len(stream), 2)))[0]
     np.testing.assert_allclose(path[:, :2], ref[:, :2], atol=1e-9)
@@ -102,7 +90,7 @@ def test_odometry_covariance_matches_monte_carlo(noise):
     σ_v = 0.05 m/√s, σ_ω = 0.1 rad/√s over 0.2 s.)
     """
     _, _, stream = simulate(2, duration=6.0)
-    path = dead_reckoning(stream, stream.x0)
+    path = dead_reckon_stream(stream, stream.x0)
     keys = keyframe_steps(stream, max_gap_s=2.0)
     _, cov = odometry_factors(stream, path, keys, noise)
     rng = np.random.default_rng(3)
@@ -240,7 +228,7 @@ def test_without_sightings_the_smoother_is_dead_reckoning():
     blind = dataclasses.replace(stream, offsets=np.zeros_like(stream.offsets), z=np.zeros((0, 2)),
                                 landmark=np.zeros(0, dtype=np.int64))
     result = smooth(blind)
-    path = dead_reckoning(blind, blind.x0)
+    path = dead_reckon_stream(blind, blind.x0)
     np.testing.assert_allclose(result.poses[:, :2], path[result.steps, :2], atol=1e-6)
     assert not result.observed.any() and result.measurements_used == 0
 
@@ -278,14 +266,14 @@ def _spy_on_laplace(monkeypatch) -> dict:
     """Record, at the smoother's Laplace step, the dense (JᵀJ)⁻¹ ("inverse") and the number of poses ("n_poses")."""
     import fastslam_edu.landmark.smoother as smoother
 
-    seen, laplace = {}, smoother._laplace
+    seen, laplace = {}, smoother.laplace
 
     def spy(problem, v, active, with_poses=True):
         J = problem.evaluate(v, active)[1]
         seen["inverse"], seen["n_poses"] = np.linalg.inv((J.T @ J).toarray()), problem.n_poses
         return laplace(problem, v, active, with_poses)
 
-    monkeypatch.setattr(smoother, "_laplace", spy)
+    monkeypatch.setattr(smoother, "laplace", spy)
     return seen
 
 

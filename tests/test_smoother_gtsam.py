@@ -21,16 +21,9 @@ from fastslam_edu.datasets.mrclam import write_dataset
 from fastslam_edu.datasets.sim import simulate_dataset
 from fastslam_edu.landmark import smoother_gtsam
 from fastslam_edu.landmark.fastslam import FastSLAMParams
-from fastslam_edu.landmark.smoother import (
-    ODOMETRY_CALIBRATION,
-    PRIOR_STD,
-    SolverSettings,
-    build_problem,
-    dead_reckoning,
-    keyframe_steps,
-    smooth,
-    starting_point,
-)
+from fastslam_edu.landmark.smoother import (ODOMETRY_CALIBRATION, PRIOR_STD, SolverSettings, build_problem, smooth,
+                                            starting_point)
+from fastslam_edu.landmark.smoother_factors import dead_reckon_stream, keyframe_steps
 from streams import simulate
 
 NOISE = MotionNoise(sigma_v=0.01, sigma_omega=0.02)
@@ -49,7 +42,7 @@ def _problem(seed: int, duration: float, params):
     """The smoother's problem on a simulated log, at its starting point (dead reckoning), every sighting active."""
     _, _, stream = simulate(seed, duration=duration)
     keys = keyframe_steps(stream)
-    path = dead_reckoning(stream, stream.x0)
+    path = dead_reckon_stream(stream, stream.x0)
     problem, seen, _ = build_problem(stream, params, keys, path, stream.x0, PRIOR_STD)
     v = starting_point(problem, path, keys, seen, None)
     problem.anchor = problem.split(v)[1] + 0.3  # anchors away from the landmarks: their term counts too
@@ -123,7 +116,7 @@ def test_odometry_chain_factor_matches_the_package_and_finite_differences():
     """One CustomFactor over a chain of 4 odometry steps: its error is the package's whitened residuals, its
     Jacobians central differences of that error under GTSAM's own retraction (x exp(δ))."""
     gtsam = pytest.importorskip("gtsam")
-    from fastslam_edu.landmark.smoother import odometry_residuals, whitening
+    from fastslam_edu.landmark.smoother_factors import odometry_residuals, whitening
 
     rng = np.random.default_rng(2)
     m = 4
@@ -289,7 +282,7 @@ def test_robot_sighting_factor_matches_the_package_and_finite_differences(huber)
     under GTSAM's retraction x exp(δ)."""
     gtsam = pytest.importorskip("gtsam")
     from fastslam_edu.landmark.multi_robot import compose
-    from fastslam_edu.landmark.smoother import measurement_residuals, whitening
+    from fastslam_edu.landmark.smoother_factors import measurement_residuals, whitening
 
     rng = np.random.default_rng(5)
     ra, rb = np.array([0, 2, 0]), np.array([1, 3, 3])

@@ -16,7 +16,7 @@ the first three terms exactly the single-robot smoother's for each robot (its pr
 odometry factors, its landmark sightings, built by :func:`~fastslam_edu.landmark.smoother.build_problem`), the last
 one per **robot-robot sighting** :math:`s`: at time :math:`t_s` robot :math:`a` measures range and bearing
 :math:`z_s = (r, \\varphi)` to the centre :math:`p^b = (x^b, y^b)` of robot :math:`b`, with the landmarks' model
-:math:`h` and noise :math:`R` (:func:`~fastslam_edu.landmark.smoother.measurement_residuals`).
+:math:`h` and noise :math:`R` (:func:`~fastslam_edu.landmark.smoother_factors.measurement_residuals`).
 
 **The poses at the sighting's instant.** A sighting time is rarely a keyframe of both robots. Rather than adding
 keyframes (which would change each robot's problem), each robot's pose at :math:`t_s` is its last keyframe at or
@@ -27,8 +27,8 @@ before :math:`t_s` moved on by the dead-reckoned motion since:
     x^a(t_s) = x^a_k \\oplus \\delta^a_s, \\qquad
     \\delta^a_s = (\\hat x^a_{k})^{-1} \\oplus \\hat x^a(t_s),
 
-with :math:`\\hat x^a` the dead-reckoned path (:func:`~fastslam_edu.landmark.smoother.dead_reckoning`, linear
-between its steps). Keyframes are at most ``max_gap_s`` (1 s) apart, so :math:`\\delta` covers under a second of
+with :math:`\\hat x^a` the dead-reckoned path (:func:`~fastslam_edu.landmark.smoother_factors.dead_reckon_stream`,
+linear between its steps). Keyframes are at most ``max_gap_s`` (1 s) apart, so :math:`\\delta` covers under a second of
 odometry, whose noise (millimetres at MR.CLAM's motion noise) is left out of :math:`R_s`. The Jacobian of
 :math:`x \\oplus \\delta` with respect to :math:`x` is
 :math:`\\begin{pmatrix} I & (-(R\\delta)_y, (R\\delta)_x)^\\top \\\\ 0 & 1 \\end{pmatrix}`
@@ -36,7 +36,7 @@ odometry, whose noise (millimetres at MR.CLAM's motion noise) is left out of :ma
 
 **Variable order.** All robots' keyframe poses sorted by time, then the landmarks: a sighting links two poses
 close in time, so the poses' normal matrix stays banded and the factorisation in this order
-(``smoother.ORDERING``) fills in only the band and the landmarks' border.
+(``smoother_laplace.ORDERING``) fills in only the band and the landmarks' border.
 
 Gate, Huber round and tempering are the single-robot smoother's
 (:func:`~fastslam_edu.landmark.smoother.solve_with_gate`): the robot sightings go through the same gate
@@ -60,22 +60,11 @@ from scipy.sparse.linalg import splu
 from fastslam_edu.core.se2 import relative
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions
-from fastslam_edu.landmark.smoother import (
-    LANDMARK_ANCHOR_STD,
-    ORDERING,
-    PRIOR_STD,
-    SmootherResult,
-    SolverSettings,
-    build_problem,
-    dead_reckoning,
-    keyframe_steps,
-    measurement_residuals,
-    odometry_residuals,
-    solve_with_gate,
-    starting_point,
-    whitening,
-    wrap_pose_error,
-)
+from fastslam_edu.landmark.smoother import (LANDMARK_ANCHOR_STD, PRIOR_STD, SmootherResult, SolverSettings,
+                                            build_problem, solve_with_gate, starting_point)
+from fastslam_edu.landmark.smoother_factors import (dead_reckon_stream, keyframe_steps, measurement_residuals,
+                                                    odometry_residuals, whitening, wrap_pose_error)
+from fastslam_edu.landmark.smoother_laplace import ORDERING
 
 #: The robots' subject numbers in MR.CLAM.
 ROBOTS = (1, 2, 3, 4, 5)
@@ -432,7 +421,7 @@ def smooth_robots(
     x0, x0_std : a pose / standard deviations for all robots, or a dict robot → value
         The prior on each robot's first pose (default: the stream's ``x0``, pinned with ``PRIOR_STD``).
     max_gap_s : float
-        Keyframe spacing (:func:`~fastslam_edu.landmark.smoother.keyframe_steps`).
+        Keyframe spacing (:func:`~fastslam_edu.landmark.smoother_factors.keyframe_steps`).
     solver : SolverSettings
         Iterations, gate rounds, tempering (``BEST_ESTIMATE``: none). ``calibrate`` is not supported here.
     backend : ``"scipy"`` or ``"gtsam"``
@@ -468,7 +457,7 @@ def smooth_robots(
     for a in robots:
         s = streams[a]
         keys[a] = keyframe_steps(s, max_gap_s)
-        paths[a] = dead_reckoning(s, s.x0, params.odometry_scale)
+        paths[a] = dead_reckon_stream(s, s.x0, params.odometry_scale)
         own[a], seen, use[a] = build_problem(s, params, keys[a], paths[a], s.x0, stds[a], tempering=solver.tempering)
         starts[a] = (seen, starting_point(own[a], paths[a], keys[a], seen, initial[a]))
 

@@ -18,7 +18,7 @@ Dellaert & Kaess's square-root SAM). With keyframe poses
 * the **odometry factors**: :math:`\\Delta_k` is the dead-reckoned motion between
   keyframes :math:`k-1` and :math:`k` in the frame of :math:`x_{k-1}`, and :math:`C_k` its
   covariance under the filter's motion noise (:class:`~fastslam_edu.core.motion.MotionNoise`),
-  propagated through every odometry step in between (:func:`odometry_factors`);
+  propagated through every odometry step in between (:func:`~.smoother_factors.odometry_factors`);
 * the **sightings**: range–bearing residuals with the filter's :math:`R_i` (range-dependent)
   and its tempering :math:`\\beta_i` (:func:`fastslam_edu.landmark.fastslam.evidence_fractions`).
 
@@ -27,15 +27,16 @@ It is solved by Levenberg–Marquardt on the sparse normal equations
 loss on the sightings (so that outliers cannot pull the start), then with the
 filter's gate: sightings with :math:`d^2 > ` ``gate_chi2`` at the solution are
 dropped and the problem solved again, until the set of dropped sightings stops changing.
+The factors are built in :mod:`.smoother_factors`, the covariances at the solution in :mod:`.smoother_laplace`.
 
 Optionally (``SolverSettings(calibrate=...)``, ``CALIBRATION_NAMES``) parameters of the model are estimated with
 the path and map, each with a weak prior (``CALIBRATION_STD``): the odometry's calibration
 :math:`(k_v, k_\\omega, \\tau)` — scale of the speed and of the turn rate, and the lag of the robot behind its
-commands — and the angle :math:`\\delta` between its direction of travel and its heading (:class:`OdometryModel`:
-:math:`\\Delta_k` becomes :math:`\\Delta_k(c)`), or a constant bias :math:`b` of every bearing
-(:func:`measurement_residuals`). :math:`\\delta` and :math:`b` are identifiable because the odometry ties the heading
-to the direction of travel; they turn the same data in opposite frames (the prior on the first pose pins the heading
-that the bearings refer to), so estimate one of them.
+commands — and the angle :math:`\\delta` between its direction of travel and its heading
+(:class:`~.smoother_factors.OdometryModel`: :math:`\\Delta_k` becomes :math:`\\Delta_k(c)`), or a constant bias
+:math:`b` of every bearing (:func:`~.smoother_factors.measurement_residuals`). :math:`\\delta` and :math:`b` are
+identifiable because the odometry ties the heading to the direction of travel; they turn the same data in opposite
+frames (the prior on the first pose pins the heading that the bearings refer to), so estimate one of them.
 
 What limits the absolute error on MR.CLAM is the frame, not the map's shape: the map and path are
 right up to a rigid motion to 3–13 cm (aligned), and that motion — a rotation of 1–5° about the start — is all that
@@ -71,35 +72,35 @@ from scipy.sparse.linalg import splu
 
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions, stream_commands
-from fastslam_edu.core.measurement import innovation, jacobian_landmark, jacobian_pose, landmark_from_measurement, range_bearing
-from fastslam_edu.core.motion import MotionNoise, dead_reckon
+from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult
+from fastslam_edu.core.measurement import landmark_from_measurement
 from fastslam_edu.core.params import Params
-from fastslam_edu.core.se2 import relative
+from fastslam_edu.landmark.smoother_factors import (OdometryModel, dead_reckon_stream, keyframe_steps,
+                                                    measurement_residuals, odometry_factors, odometry_residuals,
+                                                    sighting_weights, whitening, wrap_pose_error)
+from fastslam_edu.landmark.smoother_laplace import ORDERING, laplace
+
+#: The old name of :func:`~.smoother_factors.dead_reckon_stream`, for ``smoother_association.py`` only (it imports
+#: it from here; being split in issue 30): drop it when that import names ``dead_reckon_stream``.
+dead_reckoning = dead_reckon_stream
 
 #: Standard deviation of the prior on the first keyframe (the filter starts every particle there exactly).
 PRIOR_STD = (1e-3, 1e-3, 1e-4)  # m, m, rad
-#: Added to every odometry covariance: a robot that stands still has no sideways noise at all.
-ODOMETRY_FLOOR_STD = (1e-4, 1e-4, 1e-5)  # m, m, rad
 #: A landmark's weak pull towards where it is at the start of a round [m]: it changes nothing
 #: measurable, and keeps the problem solvable when the gate sets aside every sighting of a landmark
 #: (that landmark is then reported as not observed).
 LANDMARK_ANCHOR_STD = 1e3
-#: Variable order of the sparse factorisation: poses in time order, then landmarks. The normal
-#: matrix is then block-tridiagonal with a border (the landmarks), and factorising it in this
-#: order fills in only the border: tens of times faster than SuperLU's default (COLAMD) here.
-ORDERING = "NATURAL"
 #: The model parameters the smoother can estimate with the path and map (``SolverSettings.calibrate``), in the
 #: order of the calibration vector :math:`c`: the scales of the speed and of the turn rate and the lag of the robot
-#: behind its commands (:class:`OdometryModel`), the angle between the robot's direction of travel and its heading
-#: (``travel_offset``), and a constant offset of every bearing (``bearing_bias``, :func:`measurement_residuals`).
+#: behind its commands (:class:`~.smoother_factors.OdometryModel`), the angle between the robot's direction of
+#: travel and its heading (``travel_offset``), and a constant offset of every bearing (``bearing_bias``,
+#: :func:`~.smoother_factors.measurement_residuals`).
 CALIBRATION_NAMES = ("k_v", "k_omega", "tau", "travel_offset", "bearing_bias")
 #: The odometry's calibration :math:`(k_v, k_\\omega, \\tau)`.
 ODOMETRY_CALIBRATION = ("k_v", "k_omega", "tau")
 #: Prior standard deviations of :math:`c` when estimated, about ``params.odometry_scale`` and zero lag and angles:
 #: weak (MR.CLAM's robots measure k ≈ 0.90–0.97, τ ≈ 0.15–0.25 s, angles ≈ 1° against groundtruth).
 CALIBRATION_STD = (0.2, 0.2, 0.5, 0.1, 0.1)  # -, -, s, rad, rad
-_CALIBRATION_STEP = (1e-4, 1e-4, 1e-2)
 
 
 @dataclass
@@ -146,199 +147,6 @@ class SmootherResult:
     calibration: dict | None = None
     calibration_std: dict | None = None
     backend: str = "scipy"
-
-
-# --------------------------------------------------------------------------- the problem's pieces
-
-
-def keyframe_steps(stream: EventStream, max_gap_s: float = 1.0) -> np.ndarray:
-    """Stream steps that get a pose variable: the first, the last, every step with
-    sightings, and the first step of every ``max_gap_s`` window (so a stretch without
-    sightings is still sampled about every ``max_gap_s`` seconds).
-
-    Returns sorted step indices, shape (N,).
-    """
-    if not max_gap_s > 0:
-        raise ValueError(f"max_gap_s must be > 0 seconds, got {max_gap_s!r}")
-    n = len(stream)
-    keep = np.diff(stream.offsets) > 0
-    keep[0] = keep[-1] = True
-    window = np.floor((stream.t - stream.t[0]) / max_gap_s).astype(np.int64)
-    keep[np.flatnonzero(np.diff(window, prepend=-1))] = True
-    return np.flatnonzero(keep) if n else np.zeros(0, dtype=np.int64)
-
-
-def dead_reckoning(stream: EventStream, x0, odometry_scale=(1.0, 1.0)) -> np.ndarray:
-    """The pose after every step from the commands alone: shape (len(stream), 3), θ continuous.
-
-    :func:`fastslam_edu.core.motion.dead_reckon` of the commands times ``odometry_scale``
-    (:func:`fastslam_edu.landmark.fastslam.stream_commands`).
-    """
-    u, dt = stream_commands(stream, FastSLAMParams(odometry_scale=tuple(odometry_scale)))
-    return dead_reckon(x0, u, dt)
-
-
-def lagged_commands(stream: EventStream, tau: float) -> np.ndarray:
-    """The commands as a robot executes them ``tau`` seconds late: step ``k`` moves with the mean of the
-    recorded commands over :math:`(t_{k-1} - \\tau, t_k - \\tau]` (zero before the log starts). Shape (N, 2).
-
-    Exact for piecewise-constant commands: the integral of the recorded commands, piecewise linear
-    in time, read ``tau`` earlier at every step time.
-    """
-    u = np.array(stream.u, dtype=float)
-    if tau == 0 or len(u) < 2:
-        return u
-    t, dt = np.asarray(stream.t, dtype=float), np.asarray(stream.dt, dtype=float)
-    U = np.concatenate([np.zeros((1, 2)), np.cumsum(u[1:] * dt[1:, None], axis=0)])
-    shifted = np.stack([np.interp(t - tau, t, U[:, i]) for i in range(2)], axis=1)
-    moving = np.flatnonzero(dt > 0)
-    moving = moving[moving > 0]
-    u[moving] = (shifted[moving] - shifted[moving - 1]) / dt[moving, None]
-    return u
-
-
-class OdometryModel:
-    """The relative motions between keyframes as functions of the calibration :math:`c` (``CALIBRATION_NAMES``,
-    shape (5,); this model reads :math:`c_{0:4} = (k_v, k_\\omega, \\tau, \\delta)`): the commands, lagged by
-    :math:`\\tau` (:func:`lagged_commands`) and scaled by :math:`(k_v, k_\\omega)`, dead-reckoned; then each
-    translation turned by the travel offset :math:`\\delta` [rad],
-    :math:`\\Delta_{k,xy} \\leftarrow R(\\delta)\\,\\Delta_{k,xy}` — the robot drives along
-    :math:`\\theta + \\delta`, not along its heading :math:`\\theta` (the heading that the prior on the first pose
-    and the bearings refer to).
-
-    MR.CLAM's odometry is the *commanded* velocity; against groundtruth (100 Hz in Dataset 6), the
-    heading change over 2 s windows fits :math:`k_\\omega \\int \\omega(t - \\tau)\\,dt` with τ ≈ 0.15–0.25 s and
-    k_ω ≈ 0.93–0.97 on every robot (residual 20–40 % smaller than without the lag), the distance
-    :math:`k_v \\int v` with k_v ≈ 0.90–0.97: different robot by robot, so estimated with the path.
-    The direction of travel differs from the groundtruth heading by −1.1° to +0.5° (Dataset 6). (The covariances
-    :math:`C_k` are not turned by δ: at a degree or two, a change of a few per cent in their sideways part.)
-    """
-
-    def __init__(self, stream: EventStream, keys: np.ndarray):
-        self.stream, self.keys = stream, np.asarray(keys)
-        self._cache: tuple | None = None  # (k_v, k_ω, τ) and their relative motions: δ alone needs no dead reckoning
-
-    def _unturned(self, c) -> np.ndarray:
-        key = tuple(float(x) for x in c[:3])
-        if self._cache is None or self._cache[0] != key:
-            u = lagged_commands(self.stream, key[2]) * np.asarray(key[:2])
-            path = dead_reckon(np.zeros(3), u, np.asarray(self.stream.dt, dtype=float))
-            self._cache = key, relative(path[self.keys[:-1]], path[self.keys[1:]])
-        return self._cache[1]
-
-    def deltas(self, c) -> np.ndarray:
-        """:math:`\\Delta_k(c)`, shape (N-1, 3)."""
-        d = self._unturned(c).copy()
-        cd, sd = np.cos(c[3]), np.sin(c[3])
-        d[:, 0], d[:, 1] = cd * d[:, 0] - sd * d[:, 1], sd * d[:, 0] + cd * d[:, 1]
-        return d
-
-    def jacobian(self, c, free) -> np.ndarray:
-        """:math:`\\partial \\Delta_k / \\partial c_i` for the indices ``free`` (all < 4), shape
-        (N-1, 3, len(free)): central differences in :math:`(k_v, k_\\omega, \\tau)`, exact in δ
-        (:math:`\\partial \\Delta_{xy} / \\partial\\delta = (-\\Delta_y, \\Delta_x)`)."""
-        c = np.asarray(c, dtype=float)
-        cols = []
-        for i in free:
-            if i == 3:
-                d = self.deltas(c)
-                cols.append(np.stack([-d[:, 1], d[:, 0], np.zeros(len(d))], axis=1))
-                continue
-            h = np.zeros(len(c))
-            h[i] = _CALIBRATION_STEP[i]
-            cols.append(wrap_pose_error(self.deltas(c + h) - self.deltas(c - h)) / (2 * h[i]))
-        return np.stack(cols, axis=-1)
-
-
-def odometry_factors(stream: EventStream, path: np.ndarray, keys: np.ndarray, noise: MotionNoise):
-    """Relative motions :math:`\\Delta_k` between consecutive keyframes and their covariances :math:`C_k`.
-
-    Step ``j`` (between keyframes ``a`` and ``b``) moves by :math:`\\Delta s_j` along the heading
-    :math:`\\theta_{j-1}` and turns by :math:`\\Delta\\theta_j`. To first order, noise
-    :math:`\\delta s_j, \\delta\\theta_j` moves the pose at ``b`` by
-
-    .. math::
-
-        \\delta x_b = \\sum_j \\delta s_j \\,(\\cos\\theta_{j-1}, \\sin\\theta_{j-1}, 0)
-                    + \\delta\\theta_j \\,(-(y_b - y_j),\\; x_b - x_j,\\; 1),
-
-    (a turn at step ``j`` swings everything after it about :math:`(x_j, y_j)`), so
-    :math:`\\Sigma_b = \\sum_j \\sigma_v^2 \\Delta t_j\\, u_j u_j^\\top + \\sigma_\\omega^2 \\Delta t_j\\, g_j g_j^\\top`
-    (state-mode noise: :math:`\\sigma_{xy}^2 \\Delta t_j` on x and y instead of the first term), then
-    rotated into the frame of ``a``. ``path`` from :func:`dead_reckoning`. (First order: over an
-    interval of ``T`` seconds it misses the sideways variance :math:`\\sigma_v^2 \\sigma_\\omega^2 T^2 / 2` of a
-    distance error times a heading error, a few per cent at the filter's noise and 1 s keyframes.)
-
-    Returns ``(delta (N-1, 3), cov (N-1, 3, 3))``.
-    """
-    keys = np.asarray(keys)
-    j = np.arange(keys[0] + 1, keys[-1] + 1)  # every step inside some interval
-    f = np.searchsorted(keys, j, side="left") - 1  # its interval: keys[f] < j <= keys[f + 1]
-    dt = stream.dt[j]
-    end = path[keys[f + 1]]
-    g = np.stack([-(end[:, 1] - path[j, 1]), end[:, 0] - path[j, 0], np.ones(len(j))], axis=1)
-    if noise.mode == "control":
-        heading = path[j - 1, 2]
-        along = np.stack([np.cos(heading), np.sin(heading), np.zeros(len(j))], axis=1)
-        terms = (noise.sigma_v**2 * dt)[:, None, None] * along[:, :, None] * along[:, None, :]
-        turn = noise.sigma_omega**2 * dt
-    else:
-        terms = np.zeros((len(j), 3, 3))
-        terms[:, 0, 0] = terms[:, 1, 1] = noise.sigma_xy**2 * dt
-        turn = noise.sigma_theta**2 * dt
-    terms = terms + turn[:, None, None] * g[:, :, None] * g[:, None, :]
-    starts = np.searchsorted(f, np.arange(len(keys) - 1))  # every interval holds >= 1 step
-    cov_world = np.add.reduceat(terms, starts, axis=0)
-    a = path[keys[:-1]]
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    T = np.zeros((len(a), 3, 3))  # blockdiag(R(θ_a)ᵀ, 1)
-    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1], T[:, 2, 2] = c, s, -s, c, 1.0
-    cov = T @ cov_world @ np.swapaxes(T, 1, 2) + np.diag(np.square(ODOMETRY_FLOOR_STD))
-    return relative(a, path[keys[1:]]), cov
-
-
-def odometry_residuals(xa: np.ndarray, xb: np.ndarray, delta: np.ndarray):
-    """:math:`e = (x_a^{-1} \\oplus x_b) \\ominus \\Delta` and its Jacobians.
-
-    ``xa``, ``xb``, ``delta`` (F, 3). Returns ``(e (F, 3), Ja (F, 3, 3), Jb (F, 3, 3))`` with
-    ``Ja = ∂e/∂x_a``, ``Jb = ∂e/∂x_b``.
-    """
-    rel = relative(xa, xb)  # (R(θ_a)ᵀ (t_b − t_a), θ_b − θ_a)
-    e = wrap_pose_error(rel - delta)
-    c, s = np.cos(xa[:, 2]), np.sin(xa[:, 2])
-    Jb = np.zeros((len(xa), 3, 3))
-    Jb[:, 0, 0], Jb[:, 0, 1], Jb[:, 1, 0], Jb[:, 1, 1], Jb[:, 2, 2] = c, s, -s, c, 1.0
-    Ja = -Jb
-    Ja[:, 0, 2], Ja[:, 1, 2] = rel[:, 1], -rel[:, 0]  # turning x_a swings x_b about it
-    return e, Ja, Jb
-
-
-def measurement_residuals(x: np.ndarray, m: np.ndarray, z: np.ndarray, bearing_bias: float = 0.0):
-    """:math:`e = z \\ominus (h(x, m) + (0, b))` and its Jacobians: the camera reads every bearing :math:`b` [rad] too far
-    anticlockwise (``bearing_bias``; :math:`\\partial e / \\partial b = (0, -1)`).
-
-    ``x`` (n, 3) poses, ``m`` (n, 2) landmarks, ``z`` (n, 2) sightings. Returns
-    ``(e (n, 2), Jx (n, 2, 3), Jm (n, 2, 2))``: ``Jx = −∂h/∂x``, ``Jm = −∂h/∂m = −H``.
-    """
-    z_hat = range_bearing(x, m)
-    if bearing_bias:
-        z_hat = z_hat + np.array([0.0, bearing_bias])
-    return innovation(z, z_hat), -jacobian_pose(x, m), -jacobian_landmark(x, m)
-
-
-def whitening(cov: np.ndarray) -> np.ndarray:
-    """:math:`W = L^{-1}` with :math:`C = L L^\\top`, so that :math:`\\|W e\\|^2 = e^\\top C^{-1} e`. Shape (..., d, d)."""
-    return np.linalg.inv(np.linalg.cholesky(cov))
-
-
-def sighting_weights(stream: EventStream, tau: float | None) -> np.ndarray:
-    """The filter's tempering exponents :math:`\\beta_i` of every sighting, in stream order (n,)."""
-    beta = np.ones(stream.n_measurements)
-    last_seen = np.full(stream.n_landmarks, -np.inf)
-    for k in np.flatnonzero(np.diff(stream.offsets)):
-        s, e = stream.offsets[k], stream.offsets[k + 1]
-        beta[s:e] = evidence_fractions(stream.t[k], stream.landmark[s:e], last_seen, tau)
-    return beta
 
 
 # --------------------------------------------------------------------------- the solver
@@ -446,13 +254,6 @@ class _Problem:
         return np.sum(w * w, axis=1)
 
 
-def wrap_pose_error(e: np.ndarray) -> np.ndarray:
-    """A pose difference with its heading wrapped to (−π, π]."""
-    e = np.array(e, dtype=float)
-    e[..., 2] = wrap_angle(e[..., 2])
-    return e
-
-
 def _huber(r_m, c):
     """Per-sighting weights and cost of the Huber loss on ‖r_i‖ (``c`` None: plain least squares)."""
     s = np.sqrt(np.sum(r_m * r_m, axis=1))
@@ -496,87 +297,6 @@ def levenberg_marquardt(problem: _Problem, v, active, *, huber, max_iterations, 
         if done:
             break
     return v, it, cost
-
-
-def _pose_blocks(P, n_poses: int):
-    """The diagonal blocks ``P_kk`` (N, 3, 3) and the blocks above them ``P_k,k+1`` (N-1, 3, 3) of the
-    block-tridiagonal sparse matrix ``P`` (3N × 3N)."""
-    P = P.tocoo()
-    P.sum_duplicates()
-    k, i, j, data = P.row // 3, P.row % 3, P.col % 3, P.data
-    assert np.all(np.abs(P.col // 3 - k) <= 1), "the poses' normal matrix is block-tridiagonal"
-    diag, above = P.col // 3 == k, P.col // 3 == k + 1
-    D, C = np.zeros((n_poses, 3, 3)), np.zeros((n_poses - 1, 3, 3))
-    D[k[diag], i[diag], j[diag]] = data[diag]
-    C[k[above], i[above], j[above]] = data[above]
-    return D, C
-
-
-def block_tridiagonal_inverse_diagonal(D: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """The diagonal blocks of :math:`P^{-1}` for a symmetric positive definite block-tridiagonal :math:`P`.
-
-    ``D`` (N, d, d) are the diagonal blocks :math:`P_{kk}`, ``C`` (N-1, d, d) the blocks above them,
-    :math:`C_k = P_{k,k+1}`. Block elimination forwards, then a backward pass:
-
-    .. math::
-
-        \\Pi_0 = D_0, \\quad \\Pi_k = D_k - C_{k-1}^\\top \\Pi_{k-1}^{-1} C_{k-1}; \\qquad
-        \\Sigma_{N-1} = \\Pi_{N-1}^{-1}, \\quad
-        \\Sigma_k = \\Pi_k^{-1} + G_k \\Sigma_{k+1} G_k^\\top, \\; G_k = \\Pi_k^{-1} C_k.
-
-    Read as a Gaussian with information matrix :math:`P`: once blocks 0 … k−1 are eliminated, block k
-    given block k+1 has covariance :math:`\\Pi_k^{-1}` and mean :math:`-G_k x_{k+1}` (plus a constant),
-    and the backward pass is the law of total covariance — the Rauch–Tung–Striebel smoother's.
-    :math:`O(N d^3)`, against :math:`N d` sparse solves for the same blocks. Returns (N, d, d).
-    """
-    N = len(D)
-    Pi = np.empty_like(D)
-    Pi[0] = D[0]
-    for k in range(1, N):
-        # a solve, not Π⁻¹ times C: the subtraction cancels digits, and an explicit inverse loses more of them
-        # (pose σ 6e-8 off in relative terms on a 2850-keyframe log, against 1e-10 with the solve)
-        Pi[k] = D[k] - C[k - 1].T @ np.linalg.solve(Pi[k - 1], C[k - 1])
-    Sigma = np.empty_like(D)
-    Sigma[-1] = np.linalg.inv(Pi[-1])
-    for k in range(N - 2, -1, -1):
-        G = np.linalg.solve(Pi[k], C[k])
-        Sigma[k] = np.linalg.inv(Pi[k]) + G @ Sigma[k + 1] @ G.T
-    return Sigma
-
-
-def _laplace(problem: _Problem, v, active, with_poses=True):
-    """Standard deviations of the poses, covariances of the landmarks and of the odometry calibration (when it
-    is estimated, as three more landmark-like variables after the landmarks): blocks of :math:`(J^\\top J)^{-1}`.
-
-    With the poses first, :math:`J^\\top J = \\begin{pmatrix} P & B \\\\ B^\\top & M \\end{pmatrix}`:
-    :math:`P` (3N × 3N) is block-tridiagonal (the prior and the odometry factors link consecutive
-    keyframes only), :math:`B` links the poses to the landmarks they saw, :math:`M` (2K × 2K) holds
-    the landmarks' own blocks. Eliminating the poses (the Schur complement),
-
-    .. math::
-
-        \\Sigma_{mm} = (M - B^\\top X)^{-1}, \\qquad
-        \\Sigma_{pp} = P^{-1} + X \\Sigma_{mm} X^\\top, \\qquad X = P^{-1} B,
-
-    with the diagonal blocks of :math:`P^{-1}` from :func:`block_tridiagonal_inverse_diagonal`.
-    (Not by solving :math:`J^\\top J` for thousands of unit vectors: that took 10–20 s on a log of
-    3000 keyframes, and many times longer on a machine whose other core was busy, where each of the
-    sparse solver's many small multi-threaded BLAS calls waits for a thread that cannot run.)
-    """
-    _, J, _ = problem.evaluate(v, active)
-    A = (J.T @ J).tocsc()
-    N, p = problem.n_poses, 3 * problem.n_poses
-    P, B, M = A[:p, :p], A[:p, p:], A[p:, p:].toarray()
-    X = splu(P, permc_spec=ORDERING, diag_pivot_thresh=0.0).solve(B.toarray())  # (3N, 2K), P banded: no fill
-    cov = np.linalg.inv(M - B.T @ X)
-    K = (len(cov) - problem.n_extra) // 2
-    cov_lm = cov[:2 * K, :2 * K].reshape(K, 2, K, 2)[np.arange(K), :, np.arange(K), :]  # the 2×2 blocks on the diagonal
-    cov_extra = cov[2 * K:, 2 * K:]  # the odometry calibration's, if estimated
-    if not with_poses:
-        return np.full((N, 3), np.nan), cov_lm, cov_extra
-    var = np.diagonal(block_tridiagonal_inverse_diagonal(*_pose_blocks(P, N)), axis1=1, axis2=2).ravel()
-    var = var + np.einsum("ij,jk,ik->i", X, cov, X)  # the diagonal of X Σ_mm Xᵀ
-    return np.sqrt(np.maximum(var, 0.0)).reshape(N, 3), cov_lm, cov_extra
 
 
 @dataclass(frozen=True, eq=False)
@@ -652,9 +372,10 @@ def smooth(
         uncertainty when it is an estimate (:mod:`fastslam_edu.landmark.initial_pose`), or the first sightings
         will disagree with it and be gated out.
     max_gap_s : float
-        Keyframe spacing where there are no sightings (:func:`keyframe_steps`).
+        Keyframe spacing where there are no sightings (:func:`~.smoother_factors.keyframe_steps`).
     pose_std : bool
-        Compute the poses' standard deviations (one backward pass over the keyframes, :func:`_laplace`;
+        Compute the poses' standard deviations (one backward pass over the keyframes,
+        :func:`~fastslam_edu.landmark.smoother_laplace.laplace`;
         the landmarks' covariances are always computed).
     solver : SolverSettings
         When Levenberg–Marquardt and the gating rounds stop, which model parameters are estimated with the path and
@@ -679,7 +400,7 @@ def smooth(
         )
     x0 = np.asarray(x0, dtype=float).reshape(3)
     keys = keyframe_steps(stream, max_gap_s)
-    path = dead_reckoning(stream, x0, params.odometry_scale)
+    path = dead_reckon_stream(stream, x0, params.odometry_scale)
     problem, seen, use = build_problem(stream, params, keys, path, x0, x0_std, tempering=solver.tempering)
     if solver.calibrate:
         problem.free = np.array(sorted(CALIBRATION_NAMES.index(name) for name in solver.calibrate))
@@ -706,7 +427,7 @@ def smooth(
 def _backend(backend: str, solver: SolverSettings):
     """``(minimise, laplace)`` of ``backend``: the package's, or GTSAM's (:mod:`.smoother_gtsam`)."""
     if backend == "scipy":
-        return levenberg_marquardt, _laplace
+        return levenberg_marquardt, laplace
     if backend != "gtsam":
         raise ValueError(f"smooth: backend must be 'scipy' or 'gtsam', got {backend!r}")
     if solver.calibrate:
@@ -733,8 +454,8 @@ def _landmark_table(problem, seen, active, lms, cov_lm, K: int):
 def build_problem(stream: EventStream, params: FastSLAMParams, keys, path, x0, x0_std, tempering: bool = True):
     """The least-squares problem over the keyframe poses ``keys`` and the landmarks seen.
 
-    Odometry factors between consecutive keyframes (:func:`odometry_factors`, linearised about the
-    dead-reckoned ``path``), a prior on the first pose (``x0``, standard deviations ``x0_std``), and one factor per sighting, whitened by
+    Odometry factors between consecutive keyframes (:func:`~.smoother_factors.odometry_factors`, linearised
+    about the dead-reckoned ``path``), a prior on the first pose (``x0``, standard deviations ``x0_std``), and one factor per sighting, whitened by
     its :math:`R` and its tempering weight :math:`\\sqrt\\beta` (sightings with :math:`\\beta = 0` carry nothing;
     ``tempering=False``: :math:`\\beta` of ``measurement_correlation_s=None``).
     Returns ``(problem, seen, use)``: the landmark indices with a column, and the sightings used.

@@ -169,7 +169,7 @@ def odometry_chain_factor(first: int, delta: np.ndarray, W: np.ndarray, slots=No
     keyframes among several robots', :func:`robots_factor_graph`).
     """
     gtsam = require_gtsam()
-    from fastslam_edu.landmark.smoother import odometry_residuals
+    from fastslam_edu.landmark.smoother_factors import odometry_residuals
 
     delta, W = np.asarray(delta, dtype=float), np.asarray(W, dtype=float)
     m = len(delta)
@@ -244,7 +244,7 @@ def levenberg_marquardt(problem, v, active, *, huber, max_iterations, tol):
 
 
 def laplace(problem, v, active, with_poses=True):
-    """The Laplace covariances from ``gtsam.Marginals`` at ``v`` (the same returns as ``smoother._laplace``):
+    """The Laplace covariances from ``gtsam.Marginals`` at ``v`` (the same returns as ``smoother_laplace.laplace``):
     pose standard deviations (N, 3) [m, m, rad] in the world frame (NaN unless ``with_poses``), the landmarks'
     covariances (L, 2, 2) [m²], and an empty (0, 0) calibration block.
 
@@ -333,7 +333,7 @@ def robot_sighting_factor(ra, rb, da, db, z, W, huber: float | None = None):
     """
     gtsam = require_gtsam()
     from fastslam_edu.landmark.multi_robot import compose, compose_jacobian
-    from fastslam_edu.landmark.smoother import measurement_residuals
+    from fastslam_edu.landmark.smoother_factors import measurement_residuals
 
     slots, index = np.unique(np.r_[ra, rb], return_inverse=True)
     n = len(ra)
