@@ -21,7 +21,7 @@ from fastslam_edu.landmark.association import associate_particle, choose_landmar
 from fastslam_edu.landmark.association_history import best_history, merge_copies, seen_together
 from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
 from fastslam_edu.landmark.association_params import AssociationParams, initial_particles
-from fastslam_edu.landmark.joint_compatibility import joint_loglik, pair_information
+from fastslam_edu.landmark.joint_compatibility import N_PAIR_SLOTS, joint_loglik, pair_information
 from fastslam_edu.landmark.landmark_existence import existence_log_odds, retire_landmarks
 from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
 from fastslam_edu.landmark.hooks import Hook
@@ -227,7 +227,7 @@ def test_joint_loglik_is_the_stacked_gaussian():
         D = [np.diag(rng.uniform(0.01, 0.2, 2)) + 0.005 for _ in range(n)]
         H = rng.normal(size=(n, 2, 3))
         nu = rng.normal(scale=0.2, size=(n, 2))
-        total = np.zeros(14)
+        total = np.zeros(N_PAIR_SLOTS)
         for Di, Hi, vi in zip(D, H, nu):
             Dinv = np.linalg.inv(Di)
             total += np.concatenate([[vi @ Dinv @ vi], Hi.T @ Dinv @ vi, (Hi.T @ Dinv @ Hi).ravel(),
@@ -468,16 +468,16 @@ def test_retired_landmark_passes_its_identity_to_its_copy():
         P.log_odds[0, 0] = -0.1
         return P
 
-    P, renames = particle(), np.zeros((4, 4), dtype=np.int64)
-    retire_landmarks(P, 0, RULES._replace(inherit_radius=1.0), renames, 7)
+    P, renames, n_renames = particle(), np.zeros((4, 4), dtype=np.int64), np.zeros(1, dtype=np.int64)
+    retire_landmarks(P, 0, RULES._replace(inherit_radius=1.0), renames, n_renames, 7)
     assert P.n[0] == 3 and sorted(P.ident[0, :3].tolist()) == [100, 102, 103]
     heir = int(np.flatnonzero(P.ident[0, :3] == 100)[0])
     np.testing.assert_allclose(P.mu[0, heir], (3.3, 0.2))
     assert P.seen[0, heir] == 20 and P.evidence[0, heir] == 2.0
-    assert renames[0, 0] == 1 and renames[1].tolist() == [7, 0, 101, 100]
-    P, renames = particle(), np.zeros((4, 4), dtype=np.int64)
-    retire_landmarks(P, 0, RULES._replace(inherit_radius=0.0), renames, 7)
-    assert sorted(P.ident[0, :3].tolist()) == [101, 102, 103] and renames[0, 0] == 0
+    assert n_renames[0] == 1 and renames[0].tolist() == [7, 0, 101, 100]  # (instant, particle, heir, taken)
+    P, renames, n_renames = particle(), np.zeros((4, 4), dtype=np.int64), np.zeros(1, dtype=np.int64)
+    retire_landmarks(P, 0, RULES._replace(inherit_radius=0.0), renames, n_renames, 7)
+    assert sorted(P.ident[0, :3].tolist()) == [101, 102, 103] and n_renames[0] == 0
 
 
 def test_best_history_reads_the_hand_overs_of_its_ancestors():
@@ -486,7 +486,7 @@ def test_best_history_reads_the_hand_overs_of_its_ancestors():
     assoc = np.array([[5, 9], [5, 9]])
     parents = np.array([[0, 1], [0, 1]])
     instant_of = np.array([0, 1])
-    renames = np.array([[1, 0, 0, 0], [0, 1, 9, 5]])
+    renames = np.array([[0, 1, 9, 5]])  # at instant 0, particle 1's landmark 9 handed over to 5
     assert best_history(assoc, parents, instant_of, 1, renames).tolist() == [5, 5]
     assert best_history(assoc, parents, instant_of, 0, renames).tolist() == [5, 9]
     assert best_history(assoc, parents, instant_of, 1).tolist() == [5, 9]

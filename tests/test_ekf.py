@@ -15,6 +15,7 @@ from fastslam_edu.core.ekf import (
     gaussian_log_likelihood,
     initialise_landmark,
     ekf_initialise,
+    Innovation,
     ekf_innovation,
     ekf_update,
     innovation_statistics,
@@ -178,7 +179,12 @@ def test_the_compiled_kernels_one_landmark_at_a_time(cases):
     (mu, Sigma, x, z, R), _ = cases
     Sigma = 0.5 * (Sigma + Sigma.transpose(0, 2, 1))  # the filter stores exactly symmetric Σ
     for i in range(len(mu)):
-        nu0, nu1, *_, q00, q01, q11, d2, loglik = ekf_innovation(x[i], z[i], R[i], mu[i], Sigma[i])
+        innovation = ekf_innovation(x[i], z[i], R[i], mu[i], Sigma[i])
+        assert isinstance(innovation, Innovation) and len(innovation) == 11
+        nu0, nu1, q00, q01, q11 = innovation.nu0, innovation.nu1, innovation.q00, innovation.q01, innovation.q11
+        d2, loglik = innovation.d2, innovation.loglik
+        np.testing.assert_allclose([[innovation.h00, innovation.h01], [innovation.h10, innovation.h11]],
+                                   H_by_hand(mu[i][:, None], x[i]), rtol=1e-12, atol=1e-15)
         H = H_by_hand(mu[i][:, None], x[i])
         Q = H @ Sigma[i] @ H.T + R[i]  # written out independently
         np.testing.assert_allclose([[q00, q01], [q01, q11]], Q, rtol=1e-12, atol=1e-15)

@@ -38,6 +38,7 @@ textbook, with numpy's 2×2 matrices.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -316,11 +317,32 @@ def ekf_initialise(pose, z, R, mu, sigma):
     sigma[1, 1] = g10 * (a * g10 + b * g11) + g11 * (b * g10 + d * g11)
 
 
+class Innovation(NamedTuple):
+    """What :func:`ekf_innovation` computes for one landmark (lines 11–13 and 17), entry by entry.
+
+    ``nu0, nu1``: :math:`\\nu = z - \\hat z` [m, rad] (bearing wrapped); ``h00 … h11``:
+    :math:`H = \\partial h/\\partial m`; ``q00, q01, q11``: :math:`Q = H\\Sigma H^\\top + R` (symmetric:
+    ``q10 = q01``); ``d2``: :math:`d^2 = \\nu^\\top Q^{-1}\\nu`; ``loglik``: :math:`\\log\\mathcal N(\\nu; 0, Q)`.
+    A named tuple: numba passes it as plain numbers, and it unpacks like the tuple it is.
+    """
+
+    nu0: float
+    nu1: float
+    h00: float
+    h01: float
+    h10: float
+    h11: float
+    q00: float
+    q01: float
+    q11: float
+    d2: float
+    loglik: float
+
+
 @njit(cache=True, inline="always")
 def ekf_innovation(pose, z, R, mu, sigma):
-    """Lines 11–13 and 17: innovation, its covariance and likelihood for one landmark.
+    """Lines 11–13 and 17: innovation, its covariance and likelihood for one landmark, as an :class:`Innovation`.
 
-    Returns ``(nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, loglik)``:
     :math:`\\nu = z - \\hat z` (bearing wrapped), :math:`H`, :math:`Q = H\\Sigma H^\\top + R` (symmetric),
     :math:`d^2 = \\nu^\\top Q^{-1}\\nu` and :math:`\\log\\mathcal N(\\nu; 0, Q) = -\\tfrac12 d^2 - \\log 2\\pi - \\tfrac12\\log\\det Q`.
     """
@@ -336,7 +358,7 @@ def ekf_innovation(pose, z, R, mu, sigma):
     nu1 = wrap_one(z[1] - phi)
     d2 = (q11 * nu0 * nu0 - 2.0 * q01 * nu0 * nu1 + q00 * nu1 * nu1) / det_q
     loglik = -0.5 * d2 - LOG_2PI - 0.5 * math.log(det_q)
-    return nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, loglik
+    return Innovation(nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, loglik)
 
 
 @njit(cache=True, inline="always")

@@ -263,12 +263,20 @@ def take_particles(a, idx):
 # ---------------------------------------------------------------- the run over a log
 
 
+#: The counters of :attr:`AssociationRecord.totals`, by name: measurement instants done, resamplings, landmarks
+#: created.
+INSTANTS_DONE, MAPS_RESAMPLED, LANDMARKS_CREATED = 0, 1, 2
+N_ASSOCIATION_TOTALS = 3
+
+
 class AssociationRecord(NamedTuple):
     """What :func:`run_unknown_segments` writes: ``w`` (M,) weights; ``pose_mean``, ``pose_best`` (N, 3);
     ``assoc`` (M, n): the identity each particle gave each sighting; ``parents`` (I, M): after instant ``q``,
     particle ``m`` descends from ``parents[q, m]``; ``instant_of`` (n,): the instant of each sighting;
-    ``next_ident`` (1,); ``totals`` (3,): measurement instants, resamples, landmarks created; ``renames`` (C, 4):
-    the identities handed over (:func:`retire_landmarks`; ``renames[0, 0]`` rows from row 1)."""
+    ``next_ident`` (1,); ``totals`` (:data:`N_ASSOCIATION_TOTALS`,) int, read by name: ``totals[INSTANTS_DONE]``,
+    ``totals[MAPS_RESAMPLED]``, ``totals[LANDMARKS_CREATED]``; ``renames`` (C, 4): the identities handed over, in
+    its first ``n_renames[0]`` rows
+    (:func:`~fastslam_edu.landmark.landmark_existence.retire_landmarks`)."""
 
     w: np.ndarray
     pose_mean: np.ndarray
@@ -279,6 +287,7 @@ class AssociationRecord(NamedTuple):
     next_ident: np.ndarray
     totals: np.ndarray
     renames: np.ndarray
+    n_renames: np.ndarray
 
 
 @njit(cache=True)
@@ -296,7 +305,7 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
         a, b = L.offsets[last], L.offsets[last + 1]
-        if out.renames[0, 0] + M * P.mu.shape[1] >= out.renames.shape[0]:
+        if out.n_renames[0] + M * P.mu.shape[1] > out.renames.shape[0]:
             return r  # the record of hand-overs could fill up at this instant: the caller makes it larger, and on
         measured = b > a
         n_record = last - first + (0 if measured else 1)
@@ -309,7 +318,7 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
                        out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
         if not measured:
             continue
-        q = out.totals[0]
+        q = out.totals[INSTANTS_DONE]
         before = out.next_ident[0]
         instant = (L.z[a:b], L.R[a:b], L.t[last])
         if x_start is None:  # (decided when numba compiles)
@@ -322,8 +331,8 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
                 associate_particle_improved(P, m, instant, rules, out.next_ident, out.assoc[m, a:b],
                                             (x_bar[m], cov[m]), rng)
         for m in range(M):
-            retire_landmarks(P, m, rules, out.renames, out.totals[0])
-        out.totals[2] += out.next_ident[0] - before
+            retire_landmarks(P, m, rules, out.renames, out.n_renames, q)
+        out.totals[LANDMARKS_CREATED] += out.next_ident[0] - before
         out.instant_of[a:b] = q
         n_eff = normalise_weights(P.logw, w)
         for m in range(M):
@@ -334,8 +343,8 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
             for m in range(M):
                 out.parents[q, m] = idx[m]
             w[:] = 1.0 / M
-            out.totals[1] += 1
-        out.totals[0] += 1
+            out.totals[MAPS_RESAMPLED] += 1
+        out.totals[INSTANTS_DONE] += 1
         weighted_mean_pose(P.poses, w, out.pose_mean[last])
         copy_row(P.poses, np.argmax(w), out.pose_best[last])
     return segments.shape[0]
@@ -395,14 +404,18 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
     n, N = len(z), len(stream)
     n_instants = int(np.count_nonzero(np.diff(offsets)))
     rules = params.rules()
-    log = Log(np.asarray(stream.t, dtype=float), u, dt, offsets, z, np.zeros(n, dtype=np.int64), R)  # no identities
-    settings = Settings(fp.motion_noise.densities, fp.motion_noise.n_draws, math.inf, math.inf, 0.0, True,
-                        float(fp.resample_threshold), RESAMPLER_CODES[fp.resampler],
-                        1 if fp.proposal == "fastslam2" else 0)
-    out = AssociationRecord(np.full(M, 1.0 / M), np.empty((N, 3)), np.empty((N, 3)), np.full((M, n), -1, dtype=np.int64),
-                            np.empty((n_instants, M), dtype=np.int64), np.zeros(n, dtype=np.int64),
-                            np.zeros(1, dtype=np.int64), np.zeros(3, dtype=np.int64),
-                            np.zeros((4 * M * params.max_landmarks + 1, 4), dtype=np.int64))
+    log = Log(t=np.asarray(stream.t, dtype=float), u=u, dt=dt, offsets=offsets, z=z,
+              j=np.zeros(n, dtype=np.int64), R=R)  # no identities
+    settings = Settings(noise=fp.motion_noise.densities, n_draws=fp.motion_noise.n_draws, gate_chi2=math.inf,
+                        escape_s=math.inf, tau=0.0, update_map=True, resample_threshold=float(fp.resample_threshold),
+                        resampler=RESAMPLER_CODES[fp.resampler], proposal=1 if fp.proposal == "fastslam2" else 0)
+    out = AssociationRecord(w=np.full(M, 1.0 / M), pose_mean=np.empty((N, 3)), pose_best=np.empty((N, 3)),
+                            assoc=np.full((M, n), -1, dtype=np.int64),
+                            parents=np.empty((n_instants, M), dtype=np.int64),
+                            instant_of=np.zeros(n, dtype=np.int64), next_ident=np.zeros(1, dtype=np.int64),
+                            totals=np.zeros(N_ASSOCIATION_TOTALS, dtype=np.int64),
+                            renames=np.zeros((4 * M * params.max_landmarks, 4), dtype=np.int64),
+                            n_renames=np.zeros(1, dtype=np.int64))
     segments = np.array(list(measurement_segments(stream)), dtype=np.int64).reshape(-1, 2)
     x_start = np.empty((M, 3)) if fp.proposal == "fastslam2" else None
     done = 0
@@ -418,7 +431,7 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
     best = int(np.argmax(w))
     k = np.arange(P.n[best])
     keep = k[P.evidence[best, k] >= params.n_confirm]
-    history = best_history(assoc, parents, instant_of, best, out.renames)
+    history = best_history(assoc, parents, instant_of, best, out.renames[:out.n_renames[0]])
     landmarks, cov, ident, history = merge_copies(P.mu[best, keep], P.sigma[best, keep], P.ident[best, keep],
                                                   history, instant_of, params.merge_radius)
     seen = np.array([np.sum(history == i) for i in ident.tolist()], dtype=np.int64)
@@ -426,12 +439,12 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
         t=np.asarray(stream.t, dtype=float), pose_mean=pose_mean, pose_best=pose_best,
         landmarks=landmarks, landmarks_cov=cov, landmark_ident=ident, landmark_seen=seen,
         history=history, n_provisional=int(len(k) - len(keep)),
-        landmarks_created=int(totals[2]), n_resamples=int(totals[1]), filter_seconds=timer.filter_seconds, particles=P,
-        params=params, compile_seconds=timer.compile_seconds)
+        landmarks_created=int(totals[LANDMARKS_CREATED]), n_resamples=int(totals[MAPS_RESAMPLED]),
+        filter_seconds=timer.filter_seconds, particles=P, params=params, compile_seconds=timer.compile_seconds)
 
 
-__all__ = ["choose_landmarks", "associate_particle", "associate_particle_improved", "apply_associations",
-           "select_maps", "take_particles", "AssociationRecord", "run_unknown_segments", "AssociationResult",
+__all__ = ["INSTANTS_DONE", "MAPS_RESAMPLED", "LANDMARKS_CREATED", "N_ASSOCIATION_TOTALS", "choose_landmarks",
+           "associate_particle", "associate_particle_improved", "apply_associations", "select_maps", "take_particles", "AssociationRecord", "run_unknown_segments", "AssociationResult",
            "run_unknown"]
 # Chapter 19 (notebooks/19_hidden_barcodes.ipynb) imports AssociationParams, initial_particles and
 # new_landmark_loglik from here: this module uses them, so they stay importable from it.

@@ -6,13 +6,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from fastslam_edu.landmark.landmark_existence import RENAME_HEIR, RENAME_INSTANT, RENAME_PARTICLE, RENAME_TAKEN
+
 
 def best_history(assoc: np.ndarray, parents: np.ndarray, instant_of: np.ndarray, m: int,
                  renames: np.ndarray | None = None) -> np.ndarray:
     """The association history of final particle ``m``: the identity its ancestors gave each sighting (n,).
 
-    ``renames`` (C, 4) (:func:`retire_landmarks`): an identity that one of its ancestors handed over is read as the
-    identity it took, for the sightings before and after."""
+    ``renames`` (C, 4), the rows of hand-overs written
+    (:func:`fastslam_edu.landmark.landmark_existence.retire_landmarks`): an identity that one of its ancestors
+    handed over is read as the identity it took, for the sightings before and after."""
     out = np.full(assoc.shape[1], -1, dtype=np.int64)
     order = np.argsort(instant_of, kind="stable")
     bounds = np.searchsorted(instant_of[order], np.arange(parents.shape[0] + 1))
@@ -22,11 +25,11 @@ def best_history(assoc: np.ndarray, parents: np.ndarray, instant_of: np.ndarray,
         ancestor[q] = m
         rows = order[bounds[q]:bounds[q + 1]]
         out[rows] = assoc[m, rows]
-    if renames is None or renames[0, 0] == 0:
+    if renames is None or len(renames) == 0:
         return out
-    rows = renames[1:renames[0, 0] + 1]
-    ours = rows[ancestor[rows[:, 0]] == rows[:, 1]]
-    taken = dict(zip(ours[:, 2].tolist(), ours[:, 3].tolist()))
+    rows = np.asarray(renames)
+    ours = rows[ancestor[rows[:, RENAME_INSTANT]] == rows[:, RENAME_PARTICLE]]
+    taken = dict(zip(ours[:, RENAME_HEIR].tolist(), ours[:, RENAME_TAKEN].tolist()))
     for old in list(taken):  # a chain a -> b -> c ends at c (an identity is only ever handed to a newer landmark)
         new = taken[old]
         while new in taken:

@@ -130,16 +130,18 @@ class AssociationParams(Params):
     def rules(self) -> "Rules":
         """The settings as the compiled kernels take them (:class:`Rules`)."""
         tau = self.filter.measurement_correlation_s
-        return Rules(float(self.new_landmark_chi2), bool(self.exclusive), float(self.fov), float(self.min_range),
-                     float(self.max_range), int(self.n_confirm),
-                     math.log(self.detection_probability / self.clutter_probability),
-                     math.log((1.0 - self.detection_probability) / (1.0 - self.clutter_probability)),
-                     0.0 if tau is None else float(tau), float(self.pose_uncertainty), bool(self.provisional_as_new),
-                     float(self.drift_xy), float(self.drift_theta), float(self.association_range_scale),
-                     float(self.drift_cap_s), int(self.proposal_min_count), float(self.new_max_range),
-                     float(self.log_odds_cap_sightings) * math.log(self.detection_probability
-                                                                   / self.clutter_probability),
-                     float(self.inherit_radius), bool(self.joint_compatibility))
+        log_odds_seen = math.log(self.detection_probability / self.clutter_probability)  # log(p_D / p_F)
+        return Rules(new_chi2=float(self.new_landmark_chi2), exclusive=bool(self.exclusive), fov=float(self.fov),
+                     min_range=float(self.min_range), max_range=float(self.max_range), n_confirm=int(self.n_confirm),
+                     log_odds_seen=log_odds_seen,
+                     log_odds_missed=math.log((1.0 - self.detection_probability) / (1.0 - self.clutter_probability)),
+                     tau=0.0 if tau is None else float(tau), pose_scale=float(self.pose_uncertainty),
+                     provisional_as_new=bool(self.provisional_as_new), drift_xy=float(self.drift_xy),
+                     drift_theta=float(self.drift_theta), range_scale=float(self.association_range_scale),
+                     drift_cap_s=float(self.drift_cap_s), min_count=int(self.proposal_min_count),
+                     new_max_range=float(self.new_max_range),
+                     log_odds_cap=float(self.log_odds_cap_sightings) * log_odds_seen,
+                     inherit_radius=float(self.inherit_radius), joint=bool(self.joint_compatibility))
 
 
 class MapParticles(NamedTuple):
@@ -171,10 +173,11 @@ def initial_particles(n_particles: int, max_landmarks: int, x0) -> MapParticles:
     x0 = np.asarray(x0, dtype=float)
     if x0.shape != (3,) or not np.isfinite(x0).all():
         raise ValueError(f"initial pose must be 3 finite numbers, got {x0!r}")
-    return MapParticles(np.tile(x0, (M, 1)), np.zeros((M, K, 2)), np.tile(np.eye(2), (M, K, 1, 1)),
-                        np.zeros(M, dtype=np.int64), np.full((M, K), -1, dtype=np.int64),
-                        np.zeros((M, K), dtype=np.int64), np.zeros((M, K), dtype=np.int64),
-                        np.zeros((M, K)), np.zeros((M, K)), np.zeros((M, K)), np.zeros((M, K)), np.zeros(M))
+    return MapParticles(poses=np.tile(x0, (M, 1)), mu=np.zeros((M, K, 2)), sigma=np.tile(np.eye(2), (M, K, 1, 1)),
+                        n=np.zeros(M, dtype=np.int64), ident=np.full((M, K), -1, dtype=np.int64),
+                        seen=np.zeros((M, K), dtype=np.int64), missed=np.zeros((M, K), dtype=np.int64),
+                        evidence=np.zeros((M, K)), log_odds=np.zeros((M, K)), last_t=np.zeros((M, K)),
+                        first_t=np.zeros((M, K)), logw=np.zeros(M))
 
 
 class Rules(NamedTuple):

@@ -61,7 +61,8 @@ from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.evidence import evidence_fractions
-from fastslam_edu.landmark.fastslam_step import (RESAMPLER_CODES, Log, Record, Settings, run_segments,
+from fastslam_edu.landmark.fastslam_step import (N_TOTALS, RESAMPLER_CODES, RESAMPLES, SIGHTINGS_REJECTED,
+                                                 SIGHTINGS_USED, Log, Record, Settings, run_segments,
                                                  weighted_mean_pose)
 from fastslam_edu.landmark.gate import Gate
 from fastslam_edu.landmark.hooks import ProgressBar
@@ -321,18 +322,23 @@ class FilterRun:
         Python only between chunks of segments, to serve the ``hooks`` (one call without hooks); the result
         does not depend on the chunks."""
         p, stream = self.params, self.stream
-        log = Log(np.asarray(stream.t, dtype=float), self.u, self.dt, np.asarray(stream.offsets, dtype=np.int64),
-                  np.asarray(stream.z, dtype=float).reshape(-1, 2), np.asarray(stream.landmark, dtype=np.int64),
-                  np.ascontiguousarray(self.R))
-        settings = Settings(p.motion_noise.densities, p.motion_noise.n_draws,
-                            math.inf if self.gate.chi2 is None else float(self.gate.chi2), self.gate.escape_s,
-                            0.0 if p.measurement_correlation_s is None else float(p.measurement_correlation_s),
-                            self.update_map, float(p.resample_threshold), RESAMPLER_CODES[p.resampler],
-                            int(type(self.proposal) is ImprovedProposal), 2 if self.update_map else 1)
+        log = Log(t=np.asarray(stream.t, dtype=float), u=self.u, dt=self.dt,
+                  offsets=np.asarray(stream.offsets, dtype=np.int64),
+                  z=np.asarray(stream.z, dtype=float).reshape(-1, 2), j=np.asarray(stream.landmark, dtype=np.int64),
+                  R=np.ascontiguousarray(self.R))
+        settings = Settings(noise=p.motion_noise.densities, n_draws=p.motion_noise.n_draws,
+                            gate_chi2=math.inf if self.gate.chi2 is None else float(self.gate.chi2),
+                            escape_s=self.gate.escape_s,
+                            tau=0.0 if p.measurement_correlation_s is None else float(p.measurement_correlation_s),
+                            update_map=self.update_map, resample_threshold=float(p.resample_threshold),
+                            resampler=RESAMPLER_CODES[p.resampler],
+                            proposal=int(type(self.proposal) is ImprovedProposal),
+                            min_count=2 if self.update_map else 1)
         n_instants = int(np.count_nonzero(np.diff(stream.offsets)))
-        record = Record(self.pose_mean, self.pose_best, np.empty(n_instants), np.empty(n_instants),
-                        np.array(self.w, dtype=float), self.gate.unexplained_since, self.last_seen,
-                        np.zeros(4, dtype=np.int64))
+        record = Record(pose_mean=self.pose_mean, pose_best=self.pose_best, ess_t=np.empty(n_instants),
+                        ess=np.empty(n_instants), w=np.array(self.w, dtype=float),
+                        unexplained_since=self.gate.unexplained_since, last_seen=self.last_seen,
+                        totals=np.zeros(N_TOTALS, dtype=np.int64))
         x_start = np.empty((len(self.particles), 3)) if type(self.proposal) is ImprovedProposal else None
         self.w = record.w  # changed in place by the run: what hooks see between chunks
         chunk = min((hook.chunk_steps for hook in hooks), default=len(self.stream))
@@ -343,7 +349,9 @@ class FilterRun:
             for hook in hooks:
                 hook.after_step(self, s, e)
         self.ess_t, self.ess = list(record.ess_t), list(record.ess)
-        self.used, self.rejected, self.n_resamples = (int(v) for v in record.totals[1:])
+        totals = record.totals
+        self.used, self.rejected = int(totals[SIGHTINGS_USED]), int(totals[SIGHTINGS_REJECTED])
+        self.n_resamples = int(totals[RESAMPLES])
 
     def result(self, filter_seconds: float, compile_seconds: float = 0.0) -> FastSLAMResult:
         """Step 4 at the end: the combined map and the run's record (times in seconds, :class:`RunTimer`)."""

@@ -292,7 +292,7 @@ def explains(P, s, gate_chi2):
     """
     j = s.j
     for m in range(P.poses.shape[0]):
-        if P.seen[m, j] and ekf_innovation(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j])[9] <= gate_chi2:
+        if P.seen[m, j] and ekf_innovation(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j]).d2 <= gate_chi2:
             return True
     return not P.seen[:, j].any()
 
@@ -472,10 +472,17 @@ class Settings(NamedTuple):
     min_count: int = 2
 
 
+#: The counters of :attr:`Record.totals` (one int64 array, so that the compiled run counts in place), by name:
+#: measurement steps done, sightings used, sightings rejected by the gate, resamplings.
+STEPS_DONE, SIGHTINGS_USED, SIGHTINGS_REJECTED, RESAMPLES = 0, 1, 2, 3
+N_TOTALS = 4
+
+
 class Record(NamedTuple):
     """What the run writes: pose_mean, pose_best (N, 3); ess_t, ess (one per measurement step);
     w (M,) the current normalised weights; unexplained_since, last_seen (K,) the gate's and the
-    tempering's memory; totals (4,) int: measurement steps, sightings used, rejected, resamples."""
+    tempering's memory; totals (:data:`N_TOTALS`,) int, read by name: ``totals[STEPS_DONE]``,
+    ``totals[SIGHTINGS_USED]``, ``totals[SIGHTINGS_REJECTED]``, ``totals[RESAMPLES]``."""
 
     pose_mean: np.ndarray
     pose_best: np.ndarray
@@ -509,17 +516,18 @@ def measure_instant(P, L, s, k, rng, out, prediction):
     gate_record(t, j, explained, out.unexplained_since)
     for i in range(n):
         if explained[i] or escape[i]:
-            out.totals[1] += 1
+            out.totals[SIGHTINGS_USED] += 1
         else:
-            out.totals[2] += 1
+            out.totals[SIGHTINGS_REJECTED] += 1
     n_eff = normalise_weights(P.logw, out.w)
-    out.ess_t[out.totals[0]], out.ess[out.totals[0]] = t, n_eff
-    out.totals[0] += 1
+    q = out.totals[STEPS_DONE]
+    out.ess_t[q], out.ess[q] = t, n_eff
+    out.totals[STEPS_DONE] += 1
     m = P.poses.shape[0]
     if s.resample_threshold >= 1.0 or n_eff < s.resample_threshold * m:
         select_in_place(P, resampling_indices(out.w, rng, s.resampler))
         out.w[:] = 1.0 / m
-        out.totals[3] += 1
+        out.totals[RESAMPLES] += 1
     weighted_mean_pose(P.poses, out.w, out.pose_mean[k])
     copy_row(P.poses, np.argmax(out.w), out.pose_best[k])
 

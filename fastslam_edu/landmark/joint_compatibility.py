@@ -19,6 +19,13 @@ from fastslam_edu.landmark.association_likelihood import (drift_covariance, drif
 #: instant is decided one sighting at a time instead (:func:`choose_landmarks`).
 JOINT_MAX_HYPOTHESES = 4096
 
+#: The layout of a row of :func:`pair_information` (and of its sum over a hypothesis, :func:`joint_loglik`):
+#: :math:`\\nu^\\top D^{-1}\\nu` at ``PAIR_QUAD``; :math:`b = H_x^\\top D^{-1}\\nu` (3) from ``PAIR_B``;
+#: :math:`G = H_x^\\top D^{-1} H_x` (3×3, row-major: entry ``(u, v)`` at ``PAIR_G + 3 u + v``);
+#: :math:`\\log\\det D` at ``PAIR_LOG_DET``.
+PAIR_QUAD, PAIR_B, PAIR_G, PAIR_LOG_DET = 0, 1, 4, 13
+N_PAIR_SLOTS = 14
+
 
 @njit(cache=True)
 def joint_slots(P, m, pose, cloud, instant, rules, ll, slot):
@@ -59,8 +66,9 @@ def joint_slots(P, m, pose, cloud, instant, rules, ll, slot):
 @njit(cache=True)
 def pair_information(P, m, pose, instant, unseen, rules, ll):
     """What each candidate pair ``(i, k)`` (``ll[i, k] > -inf``) adds to a joint hypothesis
-    (:func:`joint_loglik`): (n, K, 14), :math:`\\nu^\\top D^{-1}\\nu`, :math:`H_x^\\top D^{-1}\\nu` (3),
-    :math:`H_x^\\top D^{-1} H_x` (3×3, row-major) and :math:`\\log\\det D`.
+    (:func:`joint_loglik`): (n, K, :data:`N_PAIR_SLOTS`), :math:`\\nu^\\top D^{-1}\\nu`, :math:`H_x^\\top D^{-1}\\nu`
+    (3), :math:`H_x^\\top D^{-1} H_x` (3×3, row-major) and :math:`\\log\\det D` at the slots ``PAIR_QUAD``,
+    ``PAIR_B``, ``PAIR_G``, ``PAIR_LOG_DET``.
 
     :math:`D` is the innovation covariance of :func:`innovation_with_pose` with the drift the landmark was
     unseen for beyond the instant's common ``unseen`` seconds (:func:`joint_slots`): with the common part
@@ -68,7 +76,7 @@ def pair_information(P, m, pose, instant, unseen, rules, ll):
     (:func:`association_loglik`)."""
     z, R, t = instant
     n, K = ll.shape
-    info = np.zeros((n, K, 14))
+    info = np.zeros((n, K, N_PAIR_SLOTS))
     common_xy, common_theta = drift_variances(unseen, rules)
     excess = np.zeros((3, 3))  # the landmark's own drift beyond the common part
     for i in range(n):
@@ -84,13 +92,13 @@ def pair_information(P, m, pose, instant, unseen, rules, ll):
             j0, j1, j2, k0, k1, k2 = pose_jacobian(pose, P.mu[m, k, 0], P.mu[m, k, 1])
             hr, hb = (j0, j1, j2), (k0, k1, k2)  # the rows of H_x: range, bearing
             v0, v1 = i00 * nu0 + i01 * nu1, i01 * nu0 + i11 * nu1  # D⁻¹ν
-            info[i, k, 0] = nu0 * v0 + nu1 * v1
+            info[i, k, PAIR_QUAD] = nu0 * v0 + nu1 * v1
             for u in range(3):
-                info[i, k, 1 + u] = hr[u] * v0 + hb[u] * v1
+                info[i, k, PAIR_B + u] = hr[u] * v0 + hb[u] * v1
                 for v in range(3):
-                    info[i, k, 4 + 3 * u + v] = (hr[u] * (i00 * hr[v] + i01 * hb[v])
+                    info[i, k, PAIR_G + 3 * u + v] = (hr[u] * (i00 * hr[v] + i01 * hb[v])
                                                  + hb[u] * (i01 * hr[v] + i11 * hb[v]))
-            info[i, k, 13] = math.log(det)
+            info[i, k, PAIR_LOG_DET] = math.log(det)
     return info
 
 
@@ -105,7 +113,7 @@ def best_joint_hypothesis(info, ll, p0, Pc, slot):
     n, K = ll.shape
     choice = np.full(n, -1, dtype=np.int64)
     used = np.zeros(K, dtype=np.bool_)
-    total = np.zeros(14)
+    total = np.zeros(N_PAIR_SLOTS)
     best = -math.inf
     while True:
         # (np.int64(0), not 0: a literal 0 would make numba compile joint_loglik a second time, for the constant)
@@ -148,8 +156,9 @@ def best_joint_hypothesis(info, ll, p0, Pc, slot):
 def joint_loglik(total, n_assigned, Pc):
     """:math:`\\log\\mathcal N(\\nu; 0, S)` of ``n_assigned`` stacked sightings, :math:`S = D + H_x P_c H_x^\\top`
     (:math:`D` block-diagonal), from the sums over the sightings of :func:`pair_information`'s rows, ``total``
-    (14,): :math:`a = \\sum \\nu_i^\\top D_i^{-1}\\nu_i`, :math:`b = \\sum H_i^\\top D_i^{-1}\\nu_i` (3),
-    :math:`G = \\sum H_i^\\top D_i^{-1} H_i` (3×3) and :math:`\\sum\\log\\det D_i`. With :math:`A = I + P_c G`
+    (:data:`N_PAIR_SLOTS`,): :math:`a = \\sum \\nu_i^\\top D_i^{-1}\\nu_i`,
+    :math:`b = \\sum H_i^\\top D_i^{-1}\\nu_i` (3), :math:`G = \\sum H_i^\\top D_i^{-1} H_i` (3×3) and
+    :math:`\\sum\\log\\det D_i`. With :math:`A = I + P_c G`
     (the Woodbury identity and the matrix determinant lemma, so that only 3×3 matrices are solved):
     :math:`\\nu^\\top S^{-1}\\nu = a - b^\\top A^{-1} P_c b` and :math:`\\log\\det S = \\sum\\log\\det D_i + \\log\\det A`."""
     if n_assigned == 0:
@@ -164,20 +173,20 @@ def joint_loglik(total, n_assigned, Pc):
     x0 = det3_of(c0, a01, a02, c1, a11, a12, c2, a21, a22) / det_a
     x1 = det3_of(a00, c0, a02, a10, c1, a12, a20, c2, a22) / det_a
     x2 = det3_of(a00, a01, c0, a10, a11, c1, a20, a21, c2) / det_a
-    quad = total[0] - (total[1] * x0 + total[2] * x1 + total[3] * x2)
-    return -0.5 * quad - n_assigned * LOG_2PI - 0.5 * (total[13] + math.log(det_a))
+    quad = total[PAIR_QUAD] - (total[PAIR_B] * x0 + total[PAIR_B + 1] * x1 + total[PAIR_B + 2] * x2)
+    return -0.5 * quad - n_assigned * LOG_2PI - 0.5 * (total[PAIR_LOG_DET] + math.log(det_a))
 
 
 @njit(cache=True, inline="always")
 def _pc_g(Pc, total, u, v):
-    """Entry ``(u, v)`` of :math:`P_c G`, with :math:`G` row-major in ``total[4:13]``."""
-    return Pc[u, 0] * total[4 + v] + Pc[u, 1] * total[7 + v] + Pc[u, 2] * total[10 + v]
+    """Entry ``(u, v)`` of :math:`P_c G`, with :math:`G` row-major from ``total[PAIR_G]``."""
+    return Pc[u, 0] * total[PAIR_G + v] + Pc[u, 1] * total[PAIR_G + 3 + v] + Pc[u, 2] * total[PAIR_G + 6 + v]
 
 
 @njit(cache=True, inline="always")
 def _pc_b(Pc, total, u):
-    """Entry ``u`` of :math:`P_c b`, with :math:`b` in ``total[1:4]``."""
-    return Pc[u, 0] * total[1] + Pc[u, 1] * total[2] + Pc[u, 2] * total[3]
+    """Entry ``u`` of :math:`P_c b`, with :math:`b` from ``total[PAIR_B]``."""
+    return Pc[u, 0] * total[PAIR_B] + Pc[u, 1] * total[PAIR_B + 1] + Pc[u, 2] * total[PAIR_B + 2]
 
 
 @njit(cache=True, inline="always")
@@ -186,5 +195,5 @@ def det3_of(a00, a01, a02, a10, a11, a12, a20, a21, a22):
     return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
 
 
-__all__ = ["JOINT_MAX_HYPOTHESES", "joint_slots", "pair_information", "best_joint_hypothesis", "joint_loglik",
-           "det3_of"]
+__all__ = ["JOINT_MAX_HYPOTHESES", "PAIR_QUAD", "PAIR_B", "PAIR_G", "PAIR_LOG_DET", "N_PAIR_SLOTS", "joint_slots",
+           "pair_information", "best_joint_hypothesis", "joint_loglik", "det3_of"]

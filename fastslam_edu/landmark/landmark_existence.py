@@ -102,8 +102,13 @@ def heir_of(P, m, a, rules):
     return best
 
 
+#: The columns of the record of hand-overs (:func:`retire_landmarks`): the instant, the particle, the heir's old
+#: identity, the identity it takes.
+RENAME_INSTANT, RENAME_PARTICLE, RENAME_HEIR, RENAME_TAKEN = 0, 1, 2, 3
+
+
 @njit(cache=True)
-def retire_landmarks(P, m, rules, renames, q):
+def retire_landmarks(P, m, rules, renames, n_renames, q):
     """Remove the confirmed landmarks of particle ``m`` whose existence log odds fell below zero; each passes
     its identity to its heir (:func:`heir_of`), if it has one.
 
@@ -112,8 +117,10 @@ def retire_landmarks(P, m, rules, renames, q):
     original collects misses. The copy is the same landmark seen again: it continues the original's identity
     (and counts its sightings), so that the particle's association history reads one landmark, not two. It keeps
     its own evidence: a copy still provisional stays out of the map until its own sightings confirm it. Each
-    hand-over is written to ``renames`` (C, 4) as ``(q, m, the heir's old identity, the identity it takes)``;
-    ``renames[0, 0]`` counts the rows, from row 1 (:func:`best_history` reads them).
+    hand-over is written to row ``n_renames[0]`` of ``renames`` (C, 4), columns :data:`RENAME_INSTANT`
+    (``q``), :data:`RENAME_PARTICLE` (``m``), :data:`RENAME_HEIR` (the heir's old identity) and
+    :data:`RENAME_TAKEN` (the identity it takes), and ``n_renames`` (1,) counts the rows
+    (:func:`fastslam_edu.landmark.association_history.best_history` reads them).
     """
     k = np.int64(0)  # (not 0: a literal would make numba compile heir_of and remove_landmark twice)
     while k < P.n[m]:
@@ -122,13 +129,14 @@ def retire_landmarks(P, m, rules, renames, q):
             continue
         b = heir_of(P, m, k, rules)
         if b >= 0:
-            row = renames[0, 0] + 1
-            renames[row, 0], renames[row, 1], renames[row, 2], renames[row, 3] = q, m, P.ident[m, b], P.ident[m, k]
-            renames[0, 0] = row
+            row = n_renames[0]
+            renames[row, RENAME_INSTANT], renames[row, RENAME_PARTICLE] = q, m
+            renames[row, RENAME_HEIR], renames[row, RENAME_TAKEN] = P.ident[m, b], P.ident[m, k]
+            n_renames[0] = row + 1
             P.ident[m, b] = P.ident[m, k]
             P.seen[m, b] += P.seen[m, k]
         remove_landmark(P, m, k)
 
 
 __all__ = ["add_landmark", "remove_landmark", "in_view", "existence_log_odds", "negative_evidence", "heir_of",
-           "retire_landmarks"]
+           "RENAME_INSTANT", "RENAME_PARTICLE", "RENAME_HEIR", "RENAME_TAKEN", "retire_landmarks"]
