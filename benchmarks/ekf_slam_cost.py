@@ -2,7 +2,7 @@
 
 One update = one sighting ``z = (r, φ)`` of one landmark, in a map of K landmarks all seen:
 
-* **EKF-SLAM** (:func:`fastslam_edu.landmark.ekf_slam.update`): the joint covariance
+* **EKF-SLAM** (:func:`fastslam_edu.landmark.ekf_slam_steps.update`): the joint covariance
   :math:`\\Sigma` is (3 + 2K)², and the Joseph-form update rewrites every entry — :math:`O(K^2)`
   time and memory traffic, :math:`8 (3+2K)^2` bytes held;
 * **FastSLAM, arrays** (:func:`fastslam_edu.landmark.particle_set.update_with_measurements`, M = 100):
@@ -46,7 +46,7 @@ from machine import machine_info, machine_line  # noqa: E402
 
 from fastslam_edu.core.measurement import range_bearing  # noqa: E402
 from fastslam_edu.core.resampling import systematic  # noqa: E402
-from fastslam_edu.landmark.ekf_slam import EKFSLAMState, landmark_slice, update  # noqa: E402
+from fastslam_edu.landmark.ekf_slam_steps import EKFSLAMState, landmark_slice, update  # noqa: E402
 from fastslam_edu.landmark.particle_set import ParticleSet, update_with_measurements  # noqa: E402
 from fastslam_edu.landmark.fastslam_tree import TreeParticleSet  # noqa: E402
 from fastslam_edu.landmark.tree import LandmarkTree  # noqa: E402

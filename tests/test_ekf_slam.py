@@ -30,11 +30,13 @@ from fastslam_edu.core.motion import MotionNoise, advance, propagate
 from fastslam_edu.datasets.events import event_stream
 from fastslam_edu.datasets.sim import SimConfig, simulate_dataset
 from fastslam_edu.evaluation.consistency import nees, simulator_params
-from fastslam_edu.landmark.ekf_slam import (NEW, SET_ASIDE, EKFSLAMParams, EKFSLAMState, add_landmark,
-                                            add_new_landmark, associate, association_distances, correlation_matrix,
-                                            full_measurement_jacobian, jacobian_inverse_pose, landmark_slice,
-                                            measurement_jacobian, motion_jacobian, motion_noise_covariance, predict,
-                                            predict_segment, run_ekf_slam, update)
+from fastslam_edu.landmark.ekf_slam import EKFSLAMParams, run_ekf_slam
+from fastslam_edu.landmark.ekf_slam_association import (NEW, SET_ASIDE, add_new_landmark, associate,
+                                                        association_distances)
+from fastslam_edu.landmark.ekf_slam_steps import (EKFSLAMState, add_landmark, correlation_matrix,
+                                                  full_measurement_jacobian, jacobian_inverse_pose, landmark_slice,
+                                                  measurement_jacobian, motion_jacobian, motion_noise_covariance,
+                                                  predict, predict_segment, update)
 from fastslam_edu.evaluation.association import association_accuracy, match_landmarks
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 

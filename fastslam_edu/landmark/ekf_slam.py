@@ -10,14 +10,14 @@ The state is the pose and all :math:`N` landmarks stacked,
     \\mathbf y \\sim \\mathcal N(\\mu, \\Sigma),
 
 with :math:`\\mu` of shape (3 + 2K,) [m, m, rad, m, ...] and :math:`\\Sigma` (3 + 2K, 3 + 2K).
-Landmark :math:`k` occupies rows ``3 + 2k`` and ``4 + 2k`` (:func:`landmark_slice`).
+Landmark :math:`k` occupies rows ``3 + 2k`` and ``4 + 2k`` (:func:`~.ekf_slam_steps.landmark_slice`).
 The off-diagonal blocks are what FastSLAM does without: how the error of one
 landmark is tied to the pose's and to every other landmark's.
 
 The filter, for each step of an event stream
 (:func:`fastslam_edu.datasets.events.event_stream`):
 
-1. **Prediction** (table 10.1, lines 2–5; :func:`predict`): the pose moves by the
+1. **Prediction** (table 10.1, lines 2–5; :func:`~.ekf_slam_steps.predict`): the pose moves by the
    unicycle of :mod:`fastslam_edu.core.motion` (Euler step, heading at the start),
    the map stays. With the Jacobian :math:`G_t = \\partial g / \\partial x` and the
    motion noise :math:`V_t M_t V_t^\\top` in pose space (noise densities per √s, as
@@ -29,14 +29,14 @@ The filter, for each step of an event stream
        \\Sigma_{xm} \\leftarrow G_t \\Sigma_{xm} .
 
    Only the pose's rows and columns change: :math:`O(N)`. Between two sightings the
-   steps are composed in one (:func:`predict_segment`, equal to the step-by-step
+   steps are composed in one (:func:`~.ekf_slam_steps.predict_segment`, equal to the step-by-step
    prediction to rounding).
 2. **A landmark seen for the first time** is initialised from the inverse model
-   :math:`m = h^{-1}(x, z)` (:func:`add_landmark`) with its cross-covariances:
+   :math:`m = h^{-1}(x, z)` (:func:`~.ekf_slam_steps.add_landmark`) with its cross-covariances:
    :math:`\\Sigma_{mm} = J_x \\Sigma_{xx} J_x^\\top + G R G^\\top`, :math:`\\Sigma_{m\\cdot} = J_x \\Sigma_{x\\cdot}`
    (:math:`J_x = \\partial h^{-1}/\\partial x`, :math:`G = \\partial h^{-1}/\\partial z`), not table 10.1's
    "infinite prior".
-3. **Update** (table 10.1, the loop over the sightings; :func:`update`) for each sighting
+3. **Update** (table 10.1, the loop over the sightings; :func:`~.ekf_slam_steps.update`) for each sighting
    :math:`z = (r, \\phi)` of landmark :math:`k`: :math:`\\hat z = h(\\mu_x, \\mu_k)`, the
    Jacobian :math:`H_t = \\partial h/\\partial \\mathbf y`, non-zero only in the pose's columns
    (:math:`G_x = \\partial h/\\partial x`) and landmark :math:`k`'s (:math:`H = \\partial h/\\partial m`),
@@ -50,7 +50,7 @@ The filter, for each step of an event stream
 
    (Joseph form: symmetric and positive semi-definite for any gain, and first-order
    insensitive to errors in :math:`K`). Every entry of :math:`\\Sigma` changes:
-   :math:`O(N^2)` per sighting, the cost FastSLAM avoids (:func:`joseph_update`).
+   :math:`O(N^2)` per sighting, the cost FastSLAM avoids (:func:`~.ekf_slam_steps.joseph_update`).
 4. **The gate**: a sighting whose squared Mahalanobis distance
    :math:`d^2 = \\nu^\\top Q^{-1} \\nu` exceeds ``gate_chi2`` is set aside, with the
    escape of FastSLAM's :class:`~fastslam_edu.landmark.fastslam.Gate` (after
@@ -60,11 +60,11 @@ The filter, for each step of an event stream
 reads ``stream.landmark``. The map grows one landmark at a time (the state's size is
 :math:`3 + 2N_t`, :math:`N_t` the landmarks made so far). For each sighting the squared
 Mahalanobis distance :math:`d_k^2 = \\nu_k^\\top Q_k^{-1}\\nu_k` to every map landmark is computed
-(:func:`association_distances`); the nearest one (smallest :math:`d^2`) is updated as above if
+(:func:`~.ekf_slam_association.association_distances`); the nearest one (smallest :math:`d^2`) is updated as above if
 :math:`d^2 \\le \\min(` ``gate_chi2``, ``new_landmark_chi2`` :math:`)`; if :math:`d^2 >`
 ``new_landmark_chi2`` for *every* map landmark the sighting starts a new landmark; in between it is
 set aside (too far to update, too near to be new). With ``mutual_exclusion`` the sightings of one
-instant are associated jointly (:func:`associate`, an assignment problem): two sightings of one
+instant are associated jointly (:func:`~.ekf_slam_association.associate`, an assignment problem): two sightings of one
 instant never go to the same map landmark. The gate's escape does not apply (a sighting far from
 everything makes a new landmark instead). The barcodes are used only after the run, to score it
 as FastSLAM's associations are (:mod:`fastslam_edu.evaluation.association`): the map's landmarks
@@ -80,46 +80,20 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
-from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.core.checks import finite_array
-from fastslam_edu.core.measurement import jacobian_inverse, jacobian_pose, landmark_from_measurement, range_bearing
-from fastslam_edu.core.motion import MotionNoise, dead_reckon, propagate
+from fastslam_edu.core.motion import MotionNoise
 from fastslam_edu.core.params import Params
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
+from fastslam_edu.landmark.ekf_slam_association import (NEW, SET_ASIDE, add_new_landmark, associate,
+                                                        association_distances)
+from fastslam_edu.landmark.ekf_slam_steps import (INITIALISED, REJECTED, UPDATED, EKFSLAMState, predict_segment,
+                                                  update_unchecked)
 from fastslam_edu.landmark.fastslam import FastSLAMParams, Gate, stream_commands
-from fastslam_edu.landmark.proposal import motion_prediction, segment_motion
 
-__all__ = [
-    "EKFSLAMParams",
-    "EKFSLAMState",
-    "EKFSLAMResult",
-    "landmark_slice",
-    "motion_jacobian",
-    "motion_noise_covariance",
-    "predict",
-    "predict_segment",
-    "jacobian_inverse_pose",
-    "add_landmark",
-    "measurement_jacobian",
-    "full_measurement_jacobian",
-    "joseph_update",
-    "subtract_symmetric_product",
-    "update",
-    "correlation_matrix",
-    "association_distances",
-    "associate",
-    "add_new_landmark",
-    "run_ekf_slam",
-]
+__all__ = ["EKFSLAMParams", "EKFSLAMResult", "run_ekf_slam", "NEW_LANDMARK_CHI2"]
 
-#: What :func:`update` did with a sighting.
-INITIALISED, UPDATED, REJECTED = "initialised", "updated", "rejected"
-
-#: :func:`associate`'s codes for a sighting that starts a new landmark, and one set aside.
-NEW, SET_ASIDE = -1, -2
 
 #: Default ``new_landmark_chi2``: a sighting starts a new landmark when its squared Mahalanobis distance to
 #: every map landmark exceeds this (χ² with 2 degrees of freedom: a tail of 2.5e-8). Above the gate (27.6), so a
@@ -220,416 +194,6 @@ class EKFSLAMParams(Params):
         return self.to_fastslam().measurement_covariance(z)
 
 
-# ---------------------------------------------------------------- the state
-
-
-def landmark_slice(k: int) -> slice:
-    """Rows of landmark ``k`` in the state: ``3 + 2k`` and ``4 + 2k``."""
-    return slice(3 + 2 * k, 5 + 2 * k)
-
-
-@dataclass
-class EKFSLAMState:
-    """The joint Gaussian :math:`\\mathcal N(\\mu, \\Sigma)` over pose and map.
-
-    Attributes
-    ----------
-    mu : ndarray (3 + 2K,)
-        :math:`\\mu`: pose ``(x, y, θ)`` [m, m, rad] then ``(m_x, m_y)`` [m] per landmark.
-    sigma : ndarray (3 + 2K, 3 + 2K)
-        :math:`\\Sigma`; the rows and columns of landmarks not yet seen are zero.
-    seen : ndarray (N,) bool
-        Landmark ``k`` has been initialised.
-    """
-
-    mu: np.ndarray
-    sigma: np.ndarray
-    seen: np.ndarray
-
-    @classmethod
-    def initial(cls, n_landmarks: int, x0, pose_cov=None) -> "EKFSLAMState":
-        """Pose ``x0`` (3,), covariance ``pose_cov`` (3, 3) (default 0: the start defines the frame), no landmark."""
-        if isinstance(n_landmarks, bool) or not isinstance(n_landmarks, (int, np.integer)) or n_landmarks < 0:
-            raise ValueError(f"n_landmarks must be an integer >= 0, got {n_landmarks!r}")
-        x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (3,) or not np.isfinite(x0).all():
-            raise ValueError(f"initial pose must be 3 finite numbers (x, y, theta), got {x0!r}")
-        n = 3 + 2 * int(n_landmarks)
-        mu, sigma = np.zeros(n), np.zeros((n, n))
-        mu[:3] = x0[0], x0[1], wrap_angle(x0[2])
-        if pose_cov is not None:
-            P0 = np.asarray(pose_cov, dtype=float)
-            if P0.shape != (3, 3) or not np.isfinite(P0).all() or not np.allclose(P0, P0.T) \
-                    or np.linalg.eigvalsh(P0).min() < 0:
-                raise ValueError(f"pose_cov must be a symmetric positive semi-definite 3x3 matrix, got {pose_cov!r}")
-            sigma[:3, :3] = P0
-        return cls(mu=mu, sigma=sigma, seen=np.zeros(int(n_landmarks), dtype=bool))
-
-    @property
-    def n_landmarks(self) -> int:
-        return len(self.seen)
-
-    @property
-    def pose(self) -> np.ndarray:
-        """:math:`\\mu_x` (3,) [m, m, rad] (a copy)."""
-        return self.mu[:3].copy()
-
-    @property
-    def pose_cov(self) -> np.ndarray:
-        """:math:`\\Sigma_{xx}` (3, 3) (a copy)."""
-        return self.sigma[:3, :3].copy()
-
-    def landmarks(self) -> tuple[np.ndarray, np.ndarray]:
-        """Means (N, 2) [m] and marginal covariances (N, 2, 2) [m²]; NaN for landmarks not seen."""
-        N = self.n_landmarks
-        mu = self.mu[3:].reshape(N, 2).copy()
-        idx = 3 + 2 * np.arange(N)
-        cov = np.empty((N, 2, 2))
-        for a in range(2):
-            for b in range(2):
-                cov[:, a, b] = self.sigma[idx + a, idx + b]
-        mu[~self.seen] = np.nan
-        cov[~self.seen] = np.nan
-        return mu, cov
-
-    def copy(self) -> "EKFSLAMState":
-        return EKFSLAMState(self.mu.copy(), self.sigma.copy(), self.seen.copy())
-
-
-# ---------------------------------------------------------------- 1. prediction
-
-
-def motion_jacobian(x, u, dt: float) -> np.ndarray:
-    """:math:`G_t = \\partial g / \\partial x` of the Euler step at pose ``x`` (3,) with ``u = (v, ω)`` over ``dt`` s.
-
-    ::
-
-        G_t = [[1, 0, -v Δt sin θ],
-               [0, 1,  v Δt cos θ],
-               [0, 0,  1         ]]
-
-    Returns (3, 3); the third column is in m/rad.
-    """
-    theta, ds = float(x[2]), float(u[0]) * float(dt)
-    return np.array([[1.0, 0.0, -ds * np.sin(theta)], [0.0, 1.0, ds * np.cos(theta)], [0.0, 0.0, 1.0]])
-
-
-def motion_noise_covariance(x, dt: float, noise: MotionNoise) -> np.ndarray:
-    """The motion noise of one step in pose space, :math:`V_t M_t V_t^\\top` (3, 3).
-
-    Control mode (noise on the distance :math:`\\Delta s` and turn :math:`\\Delta\\theta`):
-    :math:`M_t = \\mathrm{diag}(\\sigma_v^2 \\Delta t, \\sigma_\\omega^2 \\Delta t)` [m², rad²] and
-    :math:`V_t = \\partial g/\\partial(\\Delta s, \\Delta\\theta) = [[\\cos\\theta, 0], [\\sin\\theta, 0], [0, 1]]`.
-    State mode: :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\Delta t`.
-    """
-    if noise.mode == "control":
-        theta = float(x[2])
-        V = np.array([[np.cos(theta), 0.0], [np.sin(theta), 0.0], [0.0, 1.0]])
-        return V @ np.diag([noise.sigma_v**2 * dt, noise.sigma_omega**2 * dt]) @ V.T
-    return np.diag([noise.sigma_xy**2, noise.sigma_xy**2, noise.sigma_theta**2]) * dt
-
-
-def _move_pose_block(state: EKFSLAMState, G: np.ndarray, Q: np.ndarray) -> None:
-    """:math:`\\Sigma_{xx} \\leftarrow G\\Sigma_{xx}G^\\top + Q`, :math:`\\Sigma_{xm} \\leftarrow G\\Sigma_{xm}` (in place).
-
-    ``G``, ``Q`` (3, 3); :math:`\\Sigma_{mx}` is set to the transpose, :math:`\\Sigma_{xx}` made exactly symmetric.
-    """
-    S = state.sigma
-    S[:3, :3] = _symmetric(G @ S[:3, :3] @ G.T + Q)
-    S[:3, 3:] = G @ S[:3, 3:]
-    S[3:, :3] = S[:3, 3:].T
-
-
-def _symmetric(A: np.ndarray) -> np.ndarray:
-    """:math:`(A + A^\\top)/2`: exactly symmetric in floating point (rounding leaves products slightly off)."""
-    return 0.5 * (A + A.T)
-
-
-def predict(state: EKFSLAMState, u, dt: float, noise: MotionNoise) -> EKFSLAMState:
-    """Table 10.1, lines 2–5: one step of the motion model, in place (returns ``state``).
-
-    :math:`\\mu_x \\leftarrow g(\\mu_x, u)` (:func:`fastslam_edu.core.motion.propagate`, heading wrapped),
-    then :func:`motion_jacobian` and :func:`motion_noise_covariance` on the pose's rows and columns.
-
-    Parameters
-    ----------
-    u : (2,) command ``(v [m/s], ω [rad/s])``; dt : step [s], >= 0; noise : MotionNoise.
-    """
-    if not isinstance(noise, MotionNoise):
-        raise ValueError(f"noise must be a MotionNoise, got {type(noise).__name__}")
-    x = state.mu[:3].copy()
-    state.mu[:3] = propagate(x, u, dt)  # checks u and dt
-    _move_pose_block(state, motion_jacobian(x, u, dt), motion_noise_covariance(x, dt, noise))
-    return state
-
-
-def predict_segment(state: EKFSLAMState, u, dt, noise: MotionNoise) -> np.ndarray:
-    """:func:`predict` through ``L`` steps at once, in place; returns the mean pose after each step (L, 3).
-
-    The product of the steps' Jacobians is :math:`[[1, 0, -(y_L - y_0)], [0, 1, x_L - x_0], [0, 0, 1]]`
-    (the whole path turns about its start), and their noises add up as
-    :func:`fastslam_edu.landmark.proposal.segment_motion` computes: the result equals ``L`` calls of
-    :func:`predict` to rounding, at the cost of one.
-
-    Parameters
-    ----------
-    u : (L, 2) commands; dt : (L,) steps [s]; noise : MotionNoise.
-    """
-    if not isinstance(noise, MotionNoise):
-        raise ValueError(f"noise must be a MotionNoise, got {type(noise).__name__}")
-    u = finite_array("u", u, "predict_segment", (2,)).reshape(-1, 2)
-    dt = finite_array("dt", dt, "predict_segment").reshape(-1)
-    if len(dt) != len(u) or len(dt) == 0 or (dt < 0).any():
-        raise ValueError(f"predict_segment: u (L, 2) and dt (L,) with L >= 1 and dt >= 0, got {u.shape}, {dt.shape}")
-    x0 = state.mu[:3].copy()
-    path = dead_reckon(x0, u, dt)
-    x_end = path[-1]
-    G = np.array([[1.0, 0.0, -(x_end[1] - x0[1])], [0.0, 1.0, x_end[0] - x0[0]], [0.0, 0.0, 1.0]])
-    _, Q = motion_prediction(x0[None], *segment_motion(u, dt, noise))
-    state.mu[:3] = x_end[0], x_end[1], wrap_angle(x_end[2])
-    _move_pose_block(state, G, Q[0])
-    path[:, 2] = wrap_angle(path[:, 2])
-    return path
-
-
-# ---------------------------------------------------------------- 2. a new landmark
-
-
-def jacobian_inverse_pose(x, z) -> np.ndarray:
-    """:math:`J_x = \\partial h^{-1}/\\partial x` (2, 3) of the inverse model with respect to the pose.
-
-    ::
-
-        J_x = [[1, 0, -r sin(φ + θ)],
-               [0, 1,  r cos(φ + θ)]]
-    """
-    x = finite_array("x", x, "jacobian_inverse_pose", (3,))
-    z = finite_array("z", z, "jacobian_inverse_pose", (2,))
-    angle = z[..., 1] + x[..., 2]
-    r = z[..., 0]
-    one, zero = np.ones_like(r), np.zeros_like(r)
-    return np.stack((np.stack((one, zero, -r * np.sin(angle)), axis=-1),
-                     np.stack((zero, one, r * np.cos(angle)), axis=-1)), axis=-2)
-
-
-def add_landmark(state: EKFSLAMState, z, k: int, R) -> EKFSLAMState:
-    """Initialise landmark ``k`` from sighting ``z = (r, φ)`` (2,) with noise ``R`` (2, 2), in place.
-
-    :math:`\\mu_k = h^{-1}(\\mu_x, z)`; :math:`\\Sigma_{kk} = J_x \\Sigma_{xx} J_x^\\top + G R G^\\top`
-    and :math:`\\Sigma_{k\\cdot} = J_x \\Sigma_{x\\cdot}` (the landmark inherits the pose's error).
-    Cost :math:`O(N)`.
-    """
-    _check_landmark(state, k, "add_landmark")
-    x = state.mu[:3]
-    Jx, G = jacobian_inverse_pose(x, z), jacobian_inverse(x, z)
-    s = landmark_slice(k)
-    S = state.sigma
-    state.mu[s] = landmark_from_measurement(x, z)
-    S[s, :] = Jx @ S[:3, :]
-    S[:, s] = S[s, :].T
-    S[s, s] = _symmetric(Jx @ S[:3, :3] @ Jx.T + G @ R @ G.T)
-    state.seen[k] = True
-    return state
-
-
-# ---------------------------------------------------------------- 3. the update
-
-
-def measurement_jacobian(state: EKFSLAMState, k: int):
-    """:math:`\\hat z = h(\\mu_x, \\mu_k)` (2,) and the non-zero blocks of :math:`H_t`: :math:`G_x` (2, 3), :math:`H` (2, 2).
-
-    The full :math:`H_t` (2, 3 + 2K) is :math:`G_x` in the pose's columns, :math:`H` in landmark
-    ``k``'s, zero elsewhere (:func:`full_measurement_jacobian`).
-    """
-    x, m = state.mu[:3], state.mu[landmark_slice(k)]
-    Gx = jacobian_pose(x, m)
-    return range_bearing(x, m), Gx, -Gx[:, :2]  # ∂h/∂m = −∂h/∂(x, y): only the offset m − (x, y) counts
-
-
-def full_measurement_jacobian(state: EKFSLAMState, k: int) -> np.ndarray:
-    """:math:`H_t = \\partial h / \\partial y` (2, 3 + 2K) as a dense matrix (for teaching and checks)."""
-    _, Gx, H = measurement_jacobian(state, k)
-    Ht = np.zeros((2, len(state.mu)))
-    Ht[:, :3], Ht[:, landmark_slice(k)] = Gx, H
-    return Ht
-
-
-def joseph_update(sigma: np.ndarray, gain: np.ndarray, sigma_Ht: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """Joseph form :math:`\\Sigma \\leftarrow (I - KH_t)\\Sigma(I - KH_t)^\\top + KRK^\\top` in place, in O(n²).
-
-    With :math:`C = \\Sigma H_t^\\top` (n, 2) and :math:`Q = H_t\\Sigma H_t^\\top + R` (2, 2) the Joseph
-    form expands to :math:`\\Sigma - K C^\\top - C K^\\top + K Q K^\\top
-    = \\Sigma - (A B^\\top + B A^\\top)` with :math:`A = K`, :math:`B = C - \\tfrac12 K Q`: a symmetric
-    rank-4 change, applied entry by entry in one pass (:func:`subtract_symmetric_product`).
-    :math:`H_t` (2, n) is never formed; every entry of :math:`\\Sigma` is read and written once —
-    the :math:`O(N^2)` memory traffic of an EKF-SLAM update.
-
-    Parameters
-    ----------
-    sigma : (n, n) symmetric, updated in place; gain : (n, 2) :math:`K`; sigma_Ht : (n, 2) :math:`C`; Q : (2, 2).
-    """
-    B = sigma_Ht - 0.5 * gain @ Q
-    subtract_symmetric_product(sigma, np.ascontiguousarray(gain), np.ascontiguousarray(B))
-    return sigma
-
-
-@njit(cache=True)
-def subtract_symmetric_product(sigma, A, B):
-    """:math:`\\Sigma_{ij} \\leftarrow \\Sigma_{ij} - (a_i \\cdot b_j + b_i \\cdot a_j)` for all i, j, in place.
-
-    ``sigma`` (n, n), ``A``, ``B`` (n, r). Entry (j, i) adds the same two products in the other
-    order, and floating-point addition commutes: a symmetric :math:`\\Sigma` stays exactly symmetric.
-    """
-    n, r = A.shape
-    for i in range(n):
-        for j in range(n):
-            ab = 0.0
-            ba = 0.0
-            for c in range(r):
-                ab += A[i, c] * B[j, c]
-                ba += B[i, c] * A[j, c]
-            sigma[i, j] -= ab + ba
-
-
-def update(state: EKFSLAMState, z, k: int, R, *, gate_chi2: float | None = None, escape: bool = False) -> str:
-    """Table 10.1's loop body for one sighting ``z = (r, φ)`` (2,) of landmark ``k`` with noise ``R`` (2, 2).
-
-    A landmark not seen yet is initialised (:func:`add_landmark`). Otherwise
-    :math:`\\nu = z \\ominus h(\\mu_x, \\mu_k)`, :math:`Q = H_t\\Sigma H_t^\\top + R`,
-    :math:`K = \\Sigma H_t^\\top Q^{-1}`, :math:`\\mu \\leftarrow \\mu + K\\nu` (heading wrapped),
-    and :func:`joseph_update`; unless :math:`d^2 = \\nu^\\top Q^{-1}\\nu >` ``gate_chi2`` and not
-    ``escape``: then nothing changes.
-
-    Returns ``"initialised"``, ``"updated"`` or ``"rejected"``.
-    """
-    _check_landmark(state, k, "update")
-    z = finite_array("z", z, "update", (2,)).reshape(2)
-    R = finite_array("R", R, "update", (2, 2)).reshape(2, 2)
-    if z[0] < 0:
-        raise ValueError(f"update: negative range r = {z[0]} m in z = {z.tolist()} (z must be (r, φ))")
-    return _update(state, z, k, R, gate_chi2, escape)
-
-
-def _update(state: EKFSLAMState, z: np.ndarray, k: int, R: np.ndarray, gate_chi2, escape: bool) -> str:
-    """:func:`update` without the checks of its arguments (the run checks the stream once)."""
-    if not state.seen[k]:
-        add_landmark(state, z, k, R)
-        return INITIALISED
-    z_hat, Gx, H = measurement_jacobian(state, k)
-    s, S = landmark_slice(k), state.sigma
-    sigma_Ht = S[:, :3] @ Gx.T + S[:, s] @ H.T  # C = Σ H_tᵀ, (n, 2)
-    Q = Gx @ sigma_Ht[:3] + H @ sigma_Ht[s] + R
-    nu = z - z_hat  # ν = z ⊖ ẑ (fastslam_edu.core.measurement.innovation, without its checks)
-    nu[1] = wrap_angle(nu[1])
-    Q_inv = np.linalg.inv(Q)
-    if gate_chi2 is not None and not escape and float(nu @ Q_inv @ nu) > gate_chi2:
-        return REJECTED
-    gain = sigma_Ht @ Q_inv
-    state.mu += gain @ nu
-    state.mu[2] = wrap_angle(state.mu[2])
-    joseph_update(S, gain, sigma_Ht, Q)
-    return UPDATED
-
-
-def _check_landmark(state: EKFSLAMState, k, caller: str) -> None:
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < state.n_landmarks:
-        raise ValueError(f"{caller}: landmark index k must be an integer in [0, {state.n_landmarks}), got {k!r}")
-
-
-def correlation_matrix(sigma) -> np.ndarray:
-    """:math:`\\rho_{ij} = \\Sigma_{ij} / \\sqrt{\\Sigma_{ii}\\Sigma_{jj}}` (n, n); rows of zero variance give NaN."""
-    sigma = np.asarray(sigma, dtype=float)
-    sd = np.sqrt(np.clip(np.diag(sigma), 0.0, None))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rho = sigma / np.outer(sd, sd)
-    rho[(sd == 0)[:, None] | (sd == 0)[None, :]] = np.nan
-    return rho
-
-
-# ---------------------------------------------------------------- 5. unknown correspondences (table 10.2)
-
-
-def association_distances(state: EKFSLAMState, z, R) -> np.ndarray:
-    """Squared Mahalanobis distances :math:`d_k^2 = \\nu_k^\\top Q_k^{-1}\\nu_k` of sighting ``z`` (2,) to every map landmark.
-
-    :math:`\\nu_k = z \\ominus h(\\mu_x, \\mu_k)` and :math:`Q_k = H_t^k \\Sigma H_t^{k\\top} + R` as in
-    :func:`update`, for all seen landmarks at once (only the pose's and landmark :math:`k`'s blocks of
-    :math:`\\Sigma` enter: :math:`O(N)`). Returns (N,); ``inf`` for landmarks not seen (and for one the
-    robot stands on).
-    """
-    z = finite_array("z", z, "association_distances", (2,)).reshape(2)
-    R = finite_array("R", R, "association_distances", (2, 2)).reshape(2, 2)
-    N = state.n_landmarks
-    d2 = np.full(N, np.inf)
-    idx = np.flatnonzero(state.seen)
-    if idx.size == 0:
-        return d2
-    x = state.mu[:3]
-    m = state.mu[3:].reshape(N, 2)[idx]
-    dx, dy = m[:, 0] - x[0], m[:, 1] - x[1]
-    q = dx * dx + dy * dy
-    ok = q > 0
-    idx, dx, dy, q = idx[ok], dx[ok], dy[ok], q[ok]
-    r = np.sqrt(q)
-    zero, one = np.zeros_like(r), np.ones_like(r)
-    # J = [G_x | H] (n, 2, 5): the pose's columns, then the landmark's (H = -G_x[:, :2])
-    J = np.stack((np.stack((-dx / r, -dy / r, zero, dx / r, dy / r), axis=-1),
-                  np.stack((dy / q, -dx / q, -one, -dy / q, dx / q), axis=-1)), axis=-2)
-    rows = np.concatenate((np.broadcast_to([0, 1, 2], (len(idx), 3)),
-                           np.stack((3 + 2 * idx, 4 + 2 * idx), axis=-1)), axis=1)  # (n, 5)
-    S = state.sigma[rows[:, :, None], rows[:, None, :]]  # (n, 5, 5)
-    Q = J @ S @ np.swapaxes(J, -1, -2) + R
-    nu = np.stack((z[0] - r, wrap_angle(z[1] - (np.arctan2(dy, dx) - x[2]))), axis=-1)
-    d2[idx] = np.einsum("ni,ni->n", nu, np.linalg.solve(Q, nu[..., None])[..., 0])
-    return d2
-
-
-def associate(d2: np.ndarray, new_landmark_chi2: float, gate_chi2: float | None = None,
-              mutual_exclusion: bool = True) -> np.ndarray:
-    """Table 10.2's choice for each sighting of one instant, from their distances ``d2`` (n, N).
-
-    For each sighting: the map landmark ``k`` it updates (>= 0), :data:`NEW` (-1: its :math:`d^2` to
-    every map landmark exceeds ``new_landmark_chi2``) or :data:`SET_ASIDE` (-2: no landmark within
-    :math:`\\min(` ``gate_chi2``, ``new_landmark_chi2`` :math:`)`, but one within ``new_landmark_chi2``).
-    Without ``mutual_exclusion``: the nearest landmark of each sighting. With it: the assignment of
-    sightings to distinct landmarks (or "new") that minimises the summed :math:`d^2`, a new landmark
-    costing ``new_landmark_chi2`` (:func:`scipy.optimize.linear_sum_assignment`). Returns (n,) int.
-    """
-    d2 = np.atleast_2d(np.asarray(d2, dtype=float))
-    n, N = d2.shape
-    limit = new_landmark_chi2 if gate_chi2 is None else min(gate_chi2, new_landmark_chi2)
-    nearest = d2.min(axis=1) if N else np.full(n, np.inf)
-    out = np.where(nearest > new_landmark_chi2, NEW, SET_ASIDE)
-    if not mutual_exclusion or n == 1:
-        k = d2.argmin(axis=1) if N else np.zeros(n, dtype=int)
-        return np.where(nearest <= limit, k, out)
-    from scipy.optimize import linear_sum_assignment
-
-    big = 1e6 * (new_landmark_chi2 + 1.0)
-    cost = np.full((n, N + n), big)
-    cost[:, :N] = np.where(d2 <= limit, d2, big)
-    cost[np.arange(n), N + np.arange(n)] = new_landmark_chi2  # sighting i's own "new landmark" slot
-    rows, cols = linear_sum_assignment(cost)
-    for i, c in zip(rows, cols):
-        if c < N and cost[i, c] < big:
-            out[i] = c
-    return out
-
-
-def add_new_landmark(state: EKFSLAMState, z, R) -> int:
-    """Grow the state by one landmark (two rows and columns) and initialise it from ``z`` (:func:`add_landmark`).
-
-    Returns its index. The copy costs :math:`O(N^2)`, paid once per landmark.
-    """
-    N = state.n_landmarks
-    n = len(state.mu)
-    mu, sigma = np.zeros(n + 2), np.zeros((n + 2, n + 2))
-    mu[:n], sigma[:n, :n] = state.mu, state.sigma
-    state.mu, state.sigma, state.seen = mu, sigma, np.append(state.seen, False)
-    add_landmark(state, z, N, R)
-    return N
-
-
 # ---------------------------------------------------------------- the run
 
 
@@ -723,13 +287,14 @@ def run_ekf_slam(stream: EventStream, params: EKFSLAMParams | FastSLAMParams = E
                  pose_cov0=None, correspondences: str | None = None) -> EKFSLAMResult:
     """Run EKF-SLAM over an event stream, with known (table 10.1) or unknown (table 10.2) correspondences.
 
-    For each segment of steps ending at a measurement step: :func:`predict_segment`,
+    For each segment of steps ending at a measurement step: :func:`~.ekf_slam_steps.predict_segment`,
     then for each sighting of the step in order, with :math:`R` = ``params.measurement_covariance(z)``:
 
-    * known correspondences: :func:`update` of landmark ``stream.landmark[j]``, with the gate;
-    * unknown: :func:`associate` (the sightings of the step jointly if ``params.mutual_exclusion``,
-      on the distances before the step's updates; otherwise one by one, each after the previous
-      update), then :func:`update` of the chosen landmark or :func:`add_new_landmark`.
+    * known correspondences: :func:`~.ekf_slam_steps.update` of landmark ``stream.landmark[j]``, with the gate;
+    * unknown: :func:`~.ekf_slam_association.associate` (the sightings of the step jointly if
+      ``params.mutual_exclusion``, on the distances before the step's updates; otherwise one by one, each after the
+      previous update), then :func:`~.ekf_slam_steps.update` of the chosen landmark or
+      :func:`~.ekf_slam_association.add_new_landmark`.
       ``stream.landmark`` is not read (:mod:`fastslam_edu.evaluation.association` scores the run).
 
     Parameters
@@ -792,7 +357,7 @@ def _filter_loop(state, stream, u, dt, z_all, R_all, params, gate, unknown, pose
         else:
             for j in range(stream.offsets[e], stream.offsets[e + 1]):
                 k = int(stream.landmark[j])
-                outcome = _update(state, z_all[j], k, R_all[j], gate.chi2, bool(gate.escaped(t, [k])[0]))
+                outcome = update_unchecked(state, z_all[j], k, R_all[j], gate.chi2, bool(gate.escaped(t, [k])[0]))
                 gate.record(t, [k], [outcome != REJECTED])
                 counts[outcome] += 1
                 if outcome != REJECTED:
@@ -823,6 +388,6 @@ def _associate_and_update(state: EKFSLAMState, z_all, R_all, rows, params: EKFSL
         elif c == SET_ASIDE:
             counts[REJECTED] += 1
         else:
-            _update(state, z_all[j], c, R_all[j], None, True)
+            update_unchecked(state, z_all[j], c, R_all[j], None, True)
             sighting_map[j] = c
             counts[UPDATED] += 1
