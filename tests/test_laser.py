@@ -11,7 +11,7 @@ import pytest
 import scipy.io
 
 from fastslam_edu.datasets.laser import (LaserLog, carmen_angles, compose_increments, odometry_increments,
-    read_carmen, read_intel_json, read_relations)
+                                         read_carmen, read_intel_json, read_relations)
 from fastslam_edu.datasets.thor_lidar import read_thor_joints, read_thor_lidar, thor_angles, write_thor_lidar
 
 
