@@ -12,9 +12,12 @@ core            the building blocks
 
 datasets        data in, data made (imports no mapping or evaluation code)
     log, mrclam     the MR.CLAM reader and its tables; events: the filter's event stream
-    laser           laser logs (CARMEN, Intel JSON, relations, THOR .mat)
+    numeric_table   a text table of numbers read with every row checked (errors name the file and the line)
+    laser           laser logs (CARMEN, Intel JSON, relations)
+    thor_lidar      THOR's .mat files: LiDAR scans and joint angles, read and written
     registry, fetch pinned sources, downloads and checks (`fastslam-edu data`)
-    sim             a simulated landmark world and robot; a simulated laser world (known truth, for tests)
+    sim             a simulated landmark world and robot (known truth, for tests)
+    sim_laser       a simulated laser world: a floor plan, ray casting, noisy odometry (known truth, for tests)
     thor_geometry   THOR's LiDAR -> head -> body -> world geometry, the joint sample of each scan
     floor_plan      a building of walls and floor, and 3D rays cast in it (the simulated THOR's world)
     thor_sim        a simulated THOR sequence driven by a real joint log
@@ -27,12 +30,17 @@ landmark        landmark SLAM
     tree            Montemerlo's persistent balanced tree of landmark filters
     fastslam_tree   the filter with tree-backed maps (O(M log N) resampling)
     ekf_slam        EKF-SLAM: the joint Gaussian over pose and map (the baseline); barcodes known or not
+    ekf_slam_steps  its state and table 10.1's steps: prediction, a new landmark, the update (Joseph form)
+    ekf_slam_association  table 10.2: Mahalanobis distances, nearest neighbour or the assignment, new landmarks
     association     FastSLAM with unknown correspondences: per-particle maximum likelihood, new landmarks, negative evidence
     smoother        least squares over the whole log: the most probable path and map under the same model
+    smoother_factors  its factors: keyframes, dead reckoning, odometry and sightings, residuals and Jacobians
+    smoother_laplace  its Laplace approximation: the covariances of poses and landmarks at the solution
     initial_pose    the start pose from the first sightings of surveyed landmarks (robots without groundtruth)
 
 grid            grid SLAM
-    occupancy       log-odds occupancy grid, Bresenham and vectorised ray casting, map correlation
+    occupancy       log-odds occupancy grid, its update along the rays of a scan, map correlation
+    rays            the cells a beam crosses: Bresenham's line, and its closed form for a whole scan
     gridslam        particle-filter SLAM with a grid (the THOR write-up's algorithm and variants)
     motion          the grid filter's motion: the odometry increment, noise scaled to it
     scan_matching   map correlation (the weight) and hill-climbing scan matching
