@@ -319,56 +319,76 @@ def run_ekf_slam(stream: EventStream, params: EKFSLAMParams | FastSLAMParams = E
     if x0 is None:
         raise ValueError("no initial pose: the stream has no groundtruth; pass x0=(x, y, theta)")
     state = EKFSLAMState.initial(0 if unknown else stream.n_landmarks, x0, pose_cov0)
-    u, dt = stream_commands(stream, params)
+    commands = stream_commands(stream, params)
     z_all = np.asarray(stream.z, dtype=float)
-    R_all = params.measurement_covariance(z_all)
-    gate = Gate(params.gate_chi2, params.gate_escape_s, stream.n_landmarks)
-    T = len(stream)
-    pose_mean = np.empty((T, 3))
-    sighting_map = np.full(len(z_all), SET_ASIDE)
-    update_t, pose_cov, counts = [], [], {INITIALISED: 0, UPDATED: 0, REJECTED: 0}
+    sightings = (z_all, params.measurement_covariance(z_all))
+    record = _RunRecord(pose_mean=np.empty((len(stream), 3)), sighting_map=np.full(len(z_all), SET_ASIDE))
     with RunTimer() as timer:  # filter_seconds without numba's compiling (compile_seconds)
-        _filter_loop(state, stream, u, dt, z_all, R_all, params, gate, unknown, pose_mean, sighting_map, update_t,
-                     pose_cov, counts)
+        _filter_loop(state, stream, commands, sightings, params, record)
     map_mean, map_cov = state.landmarks()
-    mu, cov, observed = map_mean, map_cov, state.seen.copy()
+    counts = record.counts
     return EKFSLAMResult(
-        t=np.asarray(stream.t, dtype=float), pose_mean=pose_mean, landmarks_mean=mu, landmarks_cov=cov,
-        observed=observed, mean=state.mu, cov=state.sigma, update_t=np.asarray(update_t),
-        pose_cov=np.asarray(pose_cov).reshape(-1, 3, 3), measurements_used=counts[INITIALISED] + counts[UPDATED],
-        measurements_rejected=counts[REJECTED], filter_seconds=timer.filter_seconds, params=params,
-        compile_seconds=timer.compile_seconds,
+        t=np.asarray(stream.t, dtype=float), pose_mean=record.pose_mean, landmarks_mean=map_mean,
+        landmarks_cov=map_cov, observed=state.seen.copy(), mean=state.mu, cov=state.sigma,
+        update_t=np.asarray(record.update_t), pose_cov=np.asarray(record.pose_cov).reshape(-1, 3, 3),
+        measurements_used=counts[INITIALISED] + counts[UPDATED], measurements_rejected=counts[REJECTED],
+        filter_seconds=timer.filter_seconds, params=params, compile_seconds=timer.compile_seconds,
         landmark_subjects=np.asarray(stream.landmark_subjects), correspondences=params.correspondences,
-        sighting_map=sighting_map, map_mean=map_mean, map_cov=map_cov,
+        sighting_map=record.sighting_map, map_mean=map_mean, map_cov=map_cov,
     )
 
 
-def _filter_loop(state, stream, u, dt, z_all, R_all, params, gate, unknown, pose_mean, sighting_map, update_t,
-                 pose_cov, counts):
-    """Prediction and update over the whole stream (in place on ``state`` and the record arrays)."""
+@dataclass
+class _RunRecord:
+    """What the run writes down as it goes (:class:`EKFSLAMResult` is built from it)."""
+
+    pose_mean: np.ndarray  # (T, 3) μ_x after every step
+    sighting_map: np.ndarray  # (n,) the map landmark each sighting updated or started (SET_ASIDE: none)
+    update_t: list = field(default_factory=list)  # the time of every measurement step [s]
+    pose_cov: list = field(default_factory=list)  # Σ_xx (3, 3) after every measurement step
+    counts: dict = field(default_factory=lambda: {INITIALISED: 0, UPDATED: 0, REJECTED: 0})
+
+
+def _filter_loop(state: EKFSLAMState, stream: EventStream, commands, sightings, params: EKFSLAMParams,
+                 record: _RunRecord) -> None:
+    """Prediction and update over the whole stream, in place on ``state`` and ``record``.
+
+    ``commands`` = ``(u (T, 2), dt (T,))`` (:func:`~fastslam_edu.landmark.fastslam.stream_commands`),
+    ``sightings`` = ``(z (n, 2), R (n, 2, 2))`` of every sighting of the stream.
+    """
+    u, dt = commands
+    unknown = params.correspondences == "unknown"
+    gate = Gate(params.gate_chi2, params.gate_escape_s, stream.n_landmarks)
     for s, e, measured in _measurement_steps(stream):
-        pose_mean[s : e + 1] = predict_segment(state, u[s : e + 1], dt[s : e + 1], params.motion_noise)
+        record.pose_mean[s : e + 1] = predict_segment(state, u[s : e + 1], dt[s : e + 1], params.motion_noise)
         if not measured:
             continue
-        t = float(stream.t[e])
         if unknown:
-            _associate_and_update(state, z_all, R_all, range(stream.offsets[e], stream.offsets[e + 1]), params,
-                                  sighting_map, counts)
+            _associate_and_update(state, sightings, range(stream.offsets[e], stream.offsets[e + 1]), params, record)
         else:
-            for j in range(stream.offsets[e], stream.offsets[e + 1]):
-                k = int(stream.landmark[j])
-                outcome = update_unchecked(state, z_all[j], k, R_all[j], gate.chi2, bool(gate.escaped(t, [k])[0]))
-                gate.record(t, [k], [outcome != REJECTED])
-                counts[outcome] += 1
-                if outcome != REJECTED:
-                    sighting_map[j] = k
-        pose_mean[e] = state.mu[:3]
-        update_t.append(t)
-        pose_cov.append(state.sigma[:3, :3].copy())
+            _update_known(state, stream, e, sightings, gate, record)
+        record.pose_mean[e] = state.mu[:3]
+        record.update_t.append(float(stream.t[e]))
+        record.pose_cov.append(state.sigma[:3, :3].copy())
 
 
-def _associate_and_update(state: EKFSLAMState, z_all, R_all, rows, params: EKFSLAMParams, sighting_map, counts):
-    """Table 10.2 for the sightings ``rows`` of one instant (in place; fills ``sighting_map`` and ``counts``)."""
+def _update_known(state: EKFSLAMState, stream: EventStream, e: int, sightings, gate: Gate, record: _RunRecord) -> None:
+    """Table 10.1's updates for the sightings of step ``e``, their landmarks read from the stream, with the gate and
+    its escape (in place; fills ``record``)."""
+    z_all, R_all = sightings
+    t = float(stream.t[e])
+    for j in range(stream.offsets[e], stream.offsets[e + 1]):
+        k = int(stream.landmark[j])
+        outcome = update_unchecked(state, z_all[j], k, R_all[j], gate.chi2, bool(gate.escaped(t, [k])[0]))
+        gate.record(t, [k], [outcome != REJECTED])
+        record.counts[outcome] += 1
+        if outcome != REJECTED:
+            record.sighting_map[j] = k
+
+
+def _associate_and_update(state: EKFSLAMState, sightings, rows, params: EKFSLAMParams, record: _RunRecord) -> None:
+    """Table 10.2 for the sightings ``rows`` of one instant (in place; fills ``record``)."""
+    z_all, R_all = sightings
     rows = list(rows)
     joint = params.mutual_exclusion and len(rows) > 1
     if joint:
@@ -383,11 +403,11 @@ def _associate_and_update(state: EKFSLAMState, z_all, R_all, rows, params: EKFSL
         if c == NEW and params.new_landmark_max_range is not None and z_all[j, 0] > params.new_landmark_max_range:
             c = SET_ASIDE
         if c == NEW:
-            sighting_map[j] = add_new_landmark(state, z_all[j], R_all[j])
-            counts[INITIALISED] += 1
+            record.sighting_map[j] = add_new_landmark(state, z_all[j], R_all[j])
+            record.counts[INITIALISED] += 1
         elif c == SET_ASIDE:
-            counts[REJECTED] += 1
+            record.counts[REJECTED] += 1
         else:
             update_unchecked(state, z_all[j], c, R_all[j], None, True)
-            sighting_map[j] = c
-            counts[UPDATED] += 1
+            record.sighting_map[j] = c
+            record.counts[UPDATED] += 1
