@@ -92,7 +92,8 @@ def landmark_key(j: int) -> int:
 
 
 def covariance_of_whitening(W: np.ndarray) -> np.ndarray:
-    """:math:`C = (W^\\top W)^{-1}` from a whitening :math:`W` (:func:`~fastslam_edu.landmark.smoother.whitening`).
+    """:math:`C = (W^\\top W)^{-1}` from a whitening :math:`W`
+    (:func:`~fastslam_edu.landmark.smoother_factors.whitening`).
     Shape (..., d, d)."""
     return np.linalg.inv(np.swapaxes(W, -1, -2) @ W)
 
@@ -145,7 +146,7 @@ def factor_graph(problem, active: np.ndarray, huber: float | None = None):
 def odometry_chain_factor(first: int, delta: np.ndarray, W: np.ndarray, slots=None):
     """The package's odometry factors between poses ``first`` … ``first + m`` as one ``gtsam.CustomFactor``: the
     stacked whitened errors :math:`W_k e_k`, :math:`e_k = (x_{k-1}^{-1} \\oplus x_k) - \\Delta_k` (heading wrapped;
-    :func:`fastslam_edu.landmark.smoother.odometry_residuals`), ``delta`` (m, 3), whitening ``W`` (m, 3, 3) of
+    :func:`fastslam_edu.landmark.smoother_factors.odometry_residuals`), ``delta`` (m, 3), whitening ``W`` (m, 3, 3) of
     :math:`C_k` (in the frame of :math:`x_{k-1}`); a unit noise model, so its error is :math:`\\tfrac12 \\sum_k
     \\|W_k e_k\\|^2`, the package's.
 
