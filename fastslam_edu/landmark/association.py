@@ -97,14 +97,15 @@ from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association_history import best_history, merge_copies
 from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
 from fastslam_edu.landmark.association_params import AssociationParams, MapParticles, initial_particles
-from fastslam_edu.landmark.fastslam_step import (RESAMPLER_CODES, Log, Settings, copy_row, motion_prediction_of,
-                                                 normalise_weights, pose_covariance, resampling_indices,
-                                                 sample_segment, standard_normals, weighted_mean_pose)
+from fastslam_edu.landmark.fastslam_step import (copy_row, motion_prediction_of, normalise_weights, pose_covariance,
+                                                 resampling_indices, sample_segment, standard_normals,
+                                                 weighted_mean_pose)
 from fastslam_edu.landmark.joint_compatibility import joint_slots
 from fastslam_edu.landmark.landmark_existence import (add_landmark, existence_log_odds, negative_evidence,
                                                      retire_landmarks)
 from fastslam_edu.landmark.proposal import improved_pose_into
 from fastslam_edu.landmark.segments import measurement_segments, stream_commands
+from fastslam_edu.landmark.step_records import RESAMPLER_CODES, Log, Settings
 
 
 # ---------------------------------------------------------------- the decision of one particle at one instant

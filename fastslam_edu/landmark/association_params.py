@@ -14,7 +14,7 @@ import numpy as np
 
 from fastslam_edu.core.params import Params
 from fastslam_edu.landmark.fastslam import FastSLAMParams
-from fastslam_edu.landmark.fastslam_step import RESAMPLER_CODES
+from fastslam_edu.landmark.step_records import RESAMPLER_CODES
 
 
 @dataclass(frozen=True, eq=False)

@@ -35,17 +35,20 @@ this module holds the filter's settings and the driver that runs the steps over 
 with its proposal strategies (:mod:`fastslam_edu.landmark.proposal_strategies`), its gate
 (:mod:`fastslam_edu.landmark.gate`), the exponents β (:mod:`fastslam_edu.landmark.evidence`),
 the segments of steps (:mod:`fastslam_edu.landmark.segments`) and hooks
-(:mod:`fastslam_edu.landmark.hooks`). The driver's loop (:func:`run_fastslam`) is
-Python, step by step, with hooks; a run without hooks, with FastSLAM 1.0's
-proposal on the dense particle set, makes the same steps with the same random
-numbers in one compiled call (:meth:`FilterRun.run_compiled`).
+(:mod:`fastslam_edu.landmark.hooks`). A run on the dense particle set, with FastSLAM 1.0's or 2.0's
+proposal and hooks that can wait for a chunk of steps, makes all its steps in compiled calls
+(:meth:`FilterRun.run_compiled`); otherwise the driver's loop (:func:`run_python_loop`) goes
+step by step in Python, for the hooks that act between the steps, with the same kernels
+(:func:`~fastslam_edu.landmark.fastslam_step.weigh_instant` for step 2 and the weights) and the
+same random numbers.
 
 What real data needs beyond the textbook (see :mod:`fastslam_edu.evaluation.noise_estimation`):
 noise densities per √s (independent of the odometry rate), and a gate against
 outlier measurements: a measurement is rejected when, for *every* particle,
 its squared Mahalanobis distance exceeds ``gate_chi2`` (default: the point of
 χ² with 2 degrees of freedom exceeded once in a million), unless the same
-landmark has been rejected for ``gate_escape_s`` seconds (:func:`update_with_measurements`, :class:`Gate`).
+landmark has been rejected for ``gate_escape_s`` seconds
+(:func:`~fastslam_edu.landmark.particle_set.update_with_measurements`, :class:`~fastslam_edu.landmark.gate.Gate`).
 """
 from __future__ import annotations
 
@@ -61,14 +64,14 @@ from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.evidence import evidence_fractions
-from fastslam_edu.landmark.fastslam_step import (N_TOTALS, RESAMPLER_CODES, RESAMPLES, SIGHTINGS_REJECTED,
-                                                 SIGHTINGS_USED, Log, Record, Settings, run_segments,
-                                                 weighted_mean_pose)
+from fastslam_edu.landmark.fastslam_step import normalise_weights, run_segments, weigh_instant, weighted_mean_pose
 from fastslam_edu.landmark.gate import Gate
 from fastslam_edu.landmark.hooks import ProgressBar
-from fastslam_edu.landmark.particle_set import ParticleSet, combined_map, draw_parents
+from fastslam_edu.landmark.particle_set import ParticleSet, combined_map
 from fastslam_edu.landmark.proposal_strategies import ImprovedProposal, KnownPoses, MotionProposal
 from fastslam_edu.landmark.segments import MAX_SEGMENT, measurement_segments, segment_chunks, stream_commands
+from fastslam_edu.landmark.step_records import (N_TOTALS, RESAMPLER_CODES, RESAMPLES, SIGHTINGS_REJECTED, SIGHTINGS_USED,
+                                                STEPS_DONE, Log, Record, Settings)
 
 MODES = ("slam", "localize", "map")
 PROPOSALS = ("motion", "fastslam2")
@@ -253,7 +256,13 @@ class FastSLAMResult:
 
 @dataclass
 class FilterRun:
-    """The state of a run of :func:`run_fastslam` between its steps (what hooks see and may change)."""
+    """The state of a run of :func:`run_fastslam` between its steps (what hooks see and may change).
+
+    ``log``, ``settings`` and ``record``: the stream, the filter's settings and what the run writes, as the
+    compiled kernels take them (:mod:`fastslam_edu.landmark.step_records`), shared by the compiled run and the
+    Python loop. ``w`` (the current normalised weights), ``pose_mean``, ``pose_best``, ``last_seen`` and the
+    counts are read from ``record``.
+    """
 
     stream: EventStream
     params: FastSLAMParams
@@ -264,15 +273,9 @@ class FilterRun:
     u: np.ndarray
     dt: np.ndarray
     R: np.ndarray
-    w: np.ndarray
-    pose_mean: np.ndarray
-    pose_best: np.ndarray
-    last_seen: np.ndarray
-    ess_t: list = field(default_factory=list)
-    ess: list = field(default_factory=list)
-    n_resamples: int = 0
-    used: int = 0
-    rejected: int = 0
+    log: Log
+    settings: Settings
+    record: Record
     measured: bool = False
     x_start: np.ndarray | None = None
     hooks: tuple = ()
@@ -281,33 +284,88 @@ class FilterRun:
     def update_map(self) -> bool:
         return self.params.mode != "localize"
 
+    @property
+    def w(self) -> np.ndarray:
+        """The current normalised weights (M,), changed in place by the run."""
+        return self.record.w
+
+    @property
+    def pose_mean(self) -> np.ndarray:
+        return self.record.pose_mean
+
+    @property
+    def pose_best(self) -> np.ndarray:
+        return self.record.pose_best
+
+    @property
+    def last_seen(self) -> np.ndarray:
+        return self.record.last_seen
+
+    @property
+    def ess_t(self) -> np.ndarray:
+        """The times of the measurement steps done so far [s]."""
+        return self.record.ess_t[:self.record.totals[STEPS_DONE]]
+
+    @property
+    def ess(self) -> np.ndarray:
+        """:math:`N_\\text{eff}` at each measurement step done so far, before resampling."""
+        return self.record.ess[:self.record.totals[STEPS_DONE]]
+
+    @property
+    def n_resamples(self) -> int:
+        return int(self.record.totals[RESAMPLES])
+
+    @property
+    def used(self) -> int:
+        return int(self.record.totals[SIGHTINGS_USED])
+
+    @property
+    def rejected(self) -> int:
+        return int(self.record.totals[SIGHTINGS_REJECTED])
+
     def measure(self, s: int, e: int) -> None:
-        """Steps 2–4 at the measurement step ``e`` (the end of segment ``s..e``)."""
-        t = self.stream.t[e]
-        z, lm = self.stream.measurements_at(e)
-        escape = self.gate.escaped(t, lm)
-        power = evidence_fractions(t, lm, self.last_seen, self.params.measurement_correlation_s)
-        R = self.R[self.stream.offsets[e] : self.stream.offsets[e + 1]]
-        proposal_loglik = self.proposal.weigh(self, s, e, (z, lm, R, escape))
-        explained = self.particles.update(z, lm, R, update_map=self.update_map, gate_chi2=self.gate.chi2,
-                                          escape=escape, power=power, proposal_loglik=proposal_loglik)
-        self.gate.record(t, lm, explained)
-        ok = explained | escape
-        self.used += int(ok.sum())
-        self.rejected += int((~ok).sum())
-        before = self.particles
-        parents, n_eff, w = draw_parents(before, self.params.resampler, self.params.resample_threshold, self.rng)
-        did = parents is not None
-        if did:
+        """Steps 2–4 at the measurement step ``e`` (the end of segment ``s..e``) with the compiled run's kernels:
+        step 2 and the weights by :func:`~fastslam_edu.landmark.fastslam_step.weigh_instant` (the landmark trees:
+        :meth:`weigh_trees`), step 3 here, so that hooks see the parents drawn and the set before
+        (:meth:`Hook.after_resampling`), step 4 by :func:`~fastslam_edu.landmark.fastslam_step.weighted_mean_pose`."""
+        if type(self.particles) is ParticleSet:
+            n_eff = weigh_instant(self.particles.arrays(), self.log, self.settings, e, self.rng, self.record,
+                                  self.proposal.prediction(self, s, e))
+        else:
+            n_eff = self.weigh_trees(e)
+        w, m, threshold = self.record.w, len(self.particles), self.params.resample_threshold
+        before, parents = self.particles, None
+        if threshold >= 1.0 or n_eff < threshold * m:  # 1.0: at every measurement step (the write-up)
+            parents = get_resampler(self.params.resampler)(w, self.rng)
             self.particles = before.select(parents)
         for hook in self.hooks:
             hook.after_resampling(self, parents, before)
-        self.n_resamples += did
-        self.ess_t.append(t)
-        self.ess.append(n_eff)
-        self.w = np.full(len(self.particles), 1.0 / len(self.particles)) if did else w
-        weighted_mean_pose(self.particles.poses, self.w, self.pose_mean[e])
-        self.pose_best[e] = self.particles.poses[int(np.argmax(self.w))]
+        if parents is not None:
+            w[:] = 1.0 / m
+            self.record.totals[RESAMPLES] += 1
+        weighted_mean_pose(self.particles.poses, w, self.pose_mean[e])
+        self.pose_best[e] = self.particles.poses[int(np.argmax(w))]
+
+    def weigh_trees(self, e: int) -> float:
+        """:func:`~fastslam_edu.landmark.fastslam_step.weigh_instant` for a set stored otherwise than as the dense
+        arrays (the landmark trees of :mod:`fastslam_edu.landmark.fastslam_tree`): the same steps and kernels
+        around the set's own update. Returns :math:`N_\\text{eff}`."""
+        t, record = self.stream.t[e], self.record
+        z, lm = self.stream.measurements_at(e)
+        escape = self.gate.escaped(t, lm)
+        beta = evidence_fractions(t, lm, self.last_seen, self.params.measurement_correlation_s)
+        R = self.R[self.stream.offsets[e] : self.stream.offsets[e + 1]]
+        explained = self.particles.update(z, lm, R, update_map=self.update_map, gate_chi2=self.gate.chi2,
+                                          escape=escape, power=beta)
+        self.gate.record(t, lm, explained)
+        ok = explained | escape
+        record.totals[SIGHTINGS_USED] += int(ok.sum())
+        record.totals[SIGHTINGS_REJECTED] += int((~ok).sum())
+        n_eff = normalise_weights(np.asarray(self.particles.logw, dtype=float), record.w)
+        q = record.totals[STEPS_DONE]
+        record.ess_t[q], record.ess[q] = t, n_eff
+        record.totals[STEPS_DONE] += 1
+        return n_eff
 
     def compiled(self, hooks) -> bool:
         """Whether :meth:`run_compiled` can run this filter: FastSLAM 1.0's or 2.0's proposal, dense particles,
@@ -321,37 +379,16 @@ class FilterRun:
         the same lines as the Python loop of :func:`run_fastslam` and the same random numbers, returning to
         Python only between chunks of segments, to serve the ``hooks`` (one call without hooks); the result
         does not depend on the chunks."""
-        p, stream = self.params, self.stream
-        log = Log(t=np.asarray(stream.t, dtype=float), u=self.u, dt=self.dt,
-                  offsets=np.asarray(stream.offsets, dtype=np.int64),
-                  z=np.asarray(stream.z, dtype=float).reshape(-1, 2), j=np.asarray(stream.landmark, dtype=np.int64),
-                  R=np.ascontiguousarray(self.R))
-        settings = Settings(noise=p.motion_noise.densities, n_draws=p.motion_noise.n_draws,
-                            gate_chi2=math.inf if self.gate.chi2 is None else float(self.gate.chi2),
-                            escape_s=self.gate.escape_s,
-                            tau=0.0 if p.measurement_correlation_s is None else float(p.measurement_correlation_s),
-                            update_map=self.update_map, resample_threshold=float(p.resample_threshold),
-                            resampler=RESAMPLER_CODES[p.resampler],
-                            proposal=int(type(self.proposal) is ImprovedProposal),
-                            min_count=2 if self.update_map else 1)
-        n_instants = int(np.count_nonzero(np.diff(stream.offsets)))
-        record = Record(pose_mean=self.pose_mean, pose_best=self.pose_best, ess_t=np.empty(n_instants),
-                        ess=np.empty(n_instants), w=np.array(self.w, dtype=float),
-                        unexplained_since=self.gate.unexplained_since, last_seen=self.last_seen,
-                        totals=np.zeros(N_TOTALS, dtype=np.int64))
+        stream = self.stream
         x_start = np.empty((len(self.particles), 3)) if type(self.proposal) is ImprovedProposal else None
-        self.w = record.w  # changed in place by the run: what hooks see between chunks
         chunk = min((hook.chunk_steps for hook in hooks), default=len(self.stream))
         for a, b in segment_chunks(segments, chunk):
-            run_segments(self.particles.arrays(), log, settings, segments[a:b], self.rng, record, x_start)
+            run_segments(self.particles.arrays(), self.log, self.settings, segments[a:b], self.rng, self.record,
+                         x_start)
             s, e = int(segments[a, 0]), int(segments[b - 1, 1])
             self.measured = bool(stream.offsets[e + 1] > stream.offsets[e])
             for hook in hooks:
                 hook.after_step(self, s, e)
-        self.ess_t, self.ess = list(record.ess_t), list(record.ess)
-        totals = record.totals
-        self.used, self.rejected = int(totals[SIGHTINGS_USED]), int(totals[SIGHTINGS_REJECTED])
-        self.n_resamples = int(totals[RESAMPLES])
 
     def result(self, filter_seconds: float, compile_seconds: float = 0.0) -> FastSLAMResult:
         """Step 4 at the end: the combined map and the run's record (times in seconds, :class:`RunTimer`)."""
@@ -362,11 +399,34 @@ class FilterRun:
             t=np.asarray(self.stream.t, dtype=float), pose_mean=self.pose_mean, pose_best=self.pose_best,
             landmarks_mean=mu, landmarks_cov=sigma, observed=observed,
             landmarks_best=np.where(particles.seen[best][:, None], particles.mu[best], np.nan),
-            ess_t=np.asarray(self.ess_t), ess=np.asarray(self.ess), n_resamples=self.n_resamples,
+            ess_t=np.array(self.ess_t), ess=np.array(self.ess), n_resamples=self.n_resamples,
             measurements_used=self.used, measurements_rejected=self.rejected, filter_seconds=filter_seconds,
             particles=particles, params=self.params, landmark_subjects=np.asarray(self.stream.landmark_subjects),
             final=final, compile_seconds=compile_seconds,
         )
+
+
+def kernel_inputs(stream: EventStream, params: FastSLAMParams, gate: Gate, improved: bool, w) -> tuple:
+    """``(log, settings, record)`` of a run (:mod:`fastslam_edu.landmark.step_records`): the stream with its
+    commands and noise, the settings (``improved``: FastSLAM 2.0's proposal), and an empty record that starts from
+    the weights ``w`` (M,) and the ``gate``'s memory."""
+    u, dt = stream_commands(stream, params)
+    log = Log(t=np.asarray(stream.t, dtype=float), u=u, dt=dt, offsets=np.asarray(stream.offsets, dtype=np.int64),
+              z=np.asarray(stream.z, dtype=float).reshape(-1, 2), j=np.asarray(stream.landmark, dtype=np.int64),
+              R=np.ascontiguousarray(params.measurement_covariance(stream.z)))
+    update_map = params.mode != "localize"
+    tau = params.measurement_correlation_s
+    settings = Settings(noise=params.motion_noise.densities, n_draws=params.motion_noise.n_draws,
+                        gate_chi2=math.inf if gate.chi2 is None else float(gate.chi2), escape_s=gate.escape_s,
+                        tau=0.0 if tau is None else float(tau), update_map=update_map,
+                        resample_threshold=float(params.resample_threshold),
+                        resampler=RESAMPLER_CODES.get(params.resampler, -1), proposal=int(improved),
+                        min_count=2 if update_map else 1)
+    N, n_instants = len(stream), int(np.count_nonzero(np.diff(stream.offsets)))
+    record = Record(pose_mean=np.empty((N, 3)), pose_best=np.empty((N, 3)), ess_t=np.empty(n_instants),
+                    ess=np.empty(n_instants), w=np.array(w, dtype=float), unexplained_since=gate.unexplained_since,
+                    last_seen=np.full(stream.n_landmarks, -np.inf), totals=np.zeros(N_TOTALS, dtype=np.int64))
+    return log, settings, record
 
 
 def start_run(stream: EventStream, params: FastSLAMParams, rng, *, x0=None, landmarks=None, groundtruth_poses=None,
@@ -395,11 +455,10 @@ def start_run(stream: EventStream, params: FastSLAMParams, rng, *, x0=None, land
         proposal = ImprovedProposal()
     else:
         proposal = MotionProposal()
-    u, dt = stream_commands(stream, params)
-    return FilterRun(stream=stream, params=params, rng=rng, particles=particles, proposal=proposal,
-                     gate=Gate(params.gate_chi2, params.gate_escape_s, K), u=u, dt=dt,
-                     R=params.measurement_covariance(stream.z), w=particles.weights, pose_mean=np.empty((N, 3)),
-                     pose_best=np.empty((N, 3)), last_seen=np.full(K, -np.inf))
+    gate = Gate(params.gate_chi2, params.gate_escape_s, K)
+    log, settings, record = kernel_inputs(stream, params, gate, type(proposal) is ImprovedProposal, particles.weights)
+    return FilterRun(stream=stream, params=params, rng=rng, particles=particles, proposal=proposal, gate=gate,
+                     u=log.u, dt=log.dt, R=log.R, log=log, settings=settings, record=record)
 
 
 def run_fastslam(

@@ -28,7 +28,7 @@ The whole run: :func:`run_segments` chains line 4 over each run of odometry step
 the update, the weights, resampling when :math:`N_\\text{eff}` is low, the combined pose),
 so that a run over a log returns to Python once, not once per step.
 
-The particle set is passed as :class:`Particles`, a named tuple of arrays
+The particle set is passed as :class:`~fastslam_edu.landmark.step_records.Particles`, a named tuple of arrays
 (:math:`M` particles, :math:`K` landmarks), and changed in place:
 
 =========  ==============  ==========================================
@@ -59,34 +59,8 @@ from fastslam_edu.core.resampling import (inverse_cdf_unchecked, roulette_indice
 from fastslam_edu.landmark.evidence import tempering_exponents
 from fastslam_edu.landmark.gate import gate_escapes, gate_record
 from fastslam_edu.landmark.proposal import predict_into, sample_improved, segment_motion_into
-
-
-class Particles(NamedTuple):
-    """The particle set's arrays (shapes in the module docstring); the kernels change them in place."""
-
-    poses: np.ndarray
-    mu: np.ndarray
-    sigma: np.ndarray
-    seen: np.ndarray
-    count: np.ndarray
-    logw: np.ndarray
-
-
-class Sightings(NamedTuple):
-    """The n landmark sightings of one instant.
-
-    z (n, 2) ``(r, φ)`` [m, rad]; j (n,) landmark indices; R (n, 2, 2) noise
-    covariances; escape (n,) bool: applied without the gate; beta (n,): exponent
-    of the likelihood; loglik (M, n): where not NaN, the log-likelihood to weigh
-    particle m with instead of FastSLAM 1.0's (FastSLAM 2.0's proposal).
-    """
-
-    z: np.ndarray
-    j: np.ndarray
-    R: np.ndarray
-    escape: np.ndarray
-    beta: np.ndarray
-    loglik: np.ndarray
+from fastslam_edu.landmark.step_records import (RESAMPLES, SIGHTINGS_REJECTED, SIGHTINGS_USED, STEPS_DONE,
+                                                Particles, Sightings)
 
 
 # ---------------------------------------------------------------- line 4: the motion model
@@ -380,8 +354,6 @@ def pose_covariance(poses, w):
 
 # ---------------------------------------------------------------- step 3: resampling, compiled
 
-RESAMPLER_CODES = {"systematic": 0, "stratified": 1, "roulette": 2, "multinomial": 2}
-
 
 @njit(cache=True)
 def resampling_indices(w, rng, code):
@@ -439,69 +411,27 @@ def select_in_place(P, idx):
 # ---------------------------------------------------------------- the run over a chunk of the log
 
 
-class Log(NamedTuple):
-    """The event stream as the compiled run takes it (:class:`fastslam_edu.datasets.log.EventStream`).
-
-    t (N,) [s]; u (N, 2) commands; dt (N,) [s]; offsets (N + 1,): the sightings of
-    step k are ``offsets[k]:offsets[k + 1]`` of z (n, 2), j (n,), R (n, 2, 2).
-    """
-
-    t: np.ndarray
-    u: np.ndarray
-    dt: np.ndarray
-    offsets: np.ndarray
-    z: np.ndarray
-    j: np.ndarray
-    R: np.ndarray
-
-
-class Settings(NamedTuple):
-    """noise (4,) densities; n_draws 2 or 3; gate_chi2 (inf: none); escape_s; tau (0: no tempering);
-    update_map; resample_threshold; resampler (:data:`RESAMPLER_CODES`); proposal 0 (FastSLAM 1.0) or
-    1 (2.0, :mod:`fastslam_edu.landmark.proposal`); min_count: sightings of a landmark before 2.0 uses it."""
-
-    noise: np.ndarray
-    n_draws: int
-    gate_chi2: float
-    escape_s: float
-    tau: float
-    update_map: bool
-    resample_threshold: float
-    resampler: int
-    proposal: int = 0
-    min_count: int = 2
-
-
-#: The counters of :attr:`Record.totals` (one int64 array, so that the compiled run counts in place), by name:
-#: measurement steps done, sightings used, sightings rejected by the gate, resamplings.
-STEPS_DONE, SIGHTINGS_USED, SIGHTINGS_REJECTED, RESAMPLES = 0, 1, 2, 3
-N_TOTALS = 4
-
-
-class Record(NamedTuple):
-    """What the run writes: pose_mean, pose_best (N, 3); ess_t, ess (one per measurement step);
-    w (M,) the current normalised weights; unexplained_since, last_seen (K,) the gate's and the
-    tempering's memory; totals (:data:`N_TOTALS`,) int, read by name: ``totals[STEPS_DONE]``,
-    ``totals[SIGHTINGS_USED]``, ``totals[SIGHTINGS_REJECTED]``, ``totals[RESAMPLES]``."""
-
-    pose_mean: np.ndarray
-    pose_best: np.ndarray
-    ess_t: np.ndarray
-    ess: np.ndarray
-    w: np.ndarray
-    unexplained_since: np.ndarray
-    last_seen: np.ndarray
-    totals: np.ndarray
-
-
 @njit(cache=True)
 def measure_instant(P, L, s, k, rng, out, prediction):
-    """Steps 2–4 at measurement step ``k``: gate, update, weights, resampling, the combined pose.
+    """Steps 2–4 at measurement step ``k``: gate, update, weights (:func:`weigh_instant`), then resampling and the
+    combined pose (:func:`resample_and_combine`).
 
     ``P`` :class:`Particles`, ``L`` :class:`Log`, ``s`` :class:`Settings`, ``out`` :class:`Record`;
     ``prediction``: FastSLAM 2.0's :math:`(\\bar x, P)` ((M, 3), (M, 3, 3), :func:`motion_prediction_of`), or
     None for FastSLAM 1.0 — then numba drops the proposal's branch before compiling (it prunes a test
     ``is None`` on an argument), and a FastSLAM 1.0 run never compiles FastSLAM 2.0's kernels.
+    """
+    n_eff = weigh_instant(P, L, s, k, rng, out, prediction)
+    resample_and_combine(P, s, k, rng, out, n_eff)
+
+
+@njit(cache=True)
+def weigh_instant(P, L, s, k, rng, out, prediction):
+    """Step 2 and the weights at measurement step ``k`` (arguments as :func:`measure_instant`): the gate's escapes
+    and the exponents β, FastSLAM 2.0's poses (with a ``prediction``), lines 5–17 for every particle, the gate's
+    memory, the counts of sightings used and rejected, the normalised weights ``out.w`` and :math:`N_\\text{eff}`
+    (recorded, and returned). The Python loop of :func:`fastslam_edu.landmark.fastslam.run_fastslam` calls it
+    too, then resamples itself, so that its hooks see the parents drawn.
     """
     a, b = L.offsets[k], L.offsets[k + 1]
     j, t = L.j[a:b], L.t[k]
@@ -523,6 +453,14 @@ def measure_instant(P, L, s, k, rng, out, prediction):
     q = out.totals[STEPS_DONE]
     out.ess_t[q], out.ess[q] = t, n_eff
     out.totals[STEPS_DONE] += 1
+    return n_eff
+
+
+@njit(cache=True)
+def resample_and_combine(P, s, k, rng, out, n_eff):
+    """Steps 3 and 4 at measurement step ``k``: resample in place when :math:`N_\\text{eff}` (``n_eff``, from
+    :func:`weigh_instant`) is below ``s.resample_threshold`` × M (weights then uniform), and record the weighted
+    mean pose and the best particle's."""
     m = P.poses.shape[0]
     if s.resample_threshold >= 1.0 or n_eff < s.resample_threshold * m:
         select_in_place(P, resampling_indices(out.w, rng, s.resampler))

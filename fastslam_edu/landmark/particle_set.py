@@ -24,8 +24,8 @@ import numpy as np
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.core.resampling import get_resampler
-from fastslam_edu.landmark.fastslam_step import (Particles, Sightings, normalise_weights, sample_segment,
-                                                 standard_normals, update_particles)
+from fastslam_edu.landmark.fastslam_step import normalise_weights, sample_segment, standard_normals, update_particles
+from fastslam_edu.landmark.step_records import Particles, Sightings
 
 
 @dataclass

@@ -60,6 +60,7 @@ from fastslam_edu.core.angles import wrap_one
 from fastslam_edu.core.ekf import LOG_2PI, ekf_innovation, expected_measurement
 from fastslam_edu.core.measurement import innovation, jacobian_landmark, jacobian_pose, range_bearing
 from fastslam_edu.core.motion import MotionNoise
+from fastslam_edu.landmark.step_records import Sightings
 
 
 def segment_motion(u, dt, noise: MotionNoise) -> tuple[np.ndarray, np.ndarray]:
@@ -298,8 +299,6 @@ def sample_improved_poses(particles, sightings, x_bar, P, *, gate_chi2, rng, min
     :func:`fastslam_edu.landmark.particle_set.update_with_measurements`), with the gate and the
     exponents :math:`\\beta` as for its own.
     """
-    from fastslam_edu.landmark.fastslam_step import Sightings  # (fastslam_step runs this module's kernels)
-
     z, k, R, escape = sightings
     S = Sightings(np.asarray(z, dtype=float).reshape(-1, 2), np.asarray(k, dtype=np.int64),
                   np.ascontiguousarray(R, dtype=float), np.asarray(escape, dtype=np.bool_), np.ones(len(z)),

@@ -1,13 +1,13 @@
-"""How step 1 moves the particles and how step 2 weighs them: the proposal strategies of
+"""How step 1 moves the particles, and what step 2 conditions the poses on: the proposal strategies of
 :func:`fastslam_edu.landmark.fastslam.run_fastslam`'s Python loop (the compiled run picks the same by its
-``Settings.proposal``)."""
+``Settings.proposal``; both weigh with :func:`fastslam_edu.landmark.fastslam_step.weigh_instant`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from fastslam_edu.landmark.particle_set import propagate_segment
-from fastslam_edu.landmark.proposal import motion_prediction, sample_improved_poses, segment_motion
+from fastslam_edu.landmark.fastslam_step import motion_prediction_of
 
 
 class MotionProposal:
@@ -18,8 +18,9 @@ class MotionProposal:
         return propagate_segment(run.particles, run.u[s : e + 1], run.dt[s : e + 1], run.params.motion_noise,
                                  run.rng, run.w, n_record=n_record)
 
-    def weigh(self, run: "FilterRun", s: int, e: int, sightings) -> np.ndarray | None:
-        """Log weights (M, n) that replace FastSLAM 1.0's (NaN: keep them); None: all of FastSLAM 1.0's."""
+    def prediction(self, run: "FilterRun", s: int, e: int):
+        """FastSLAM 2.0's motion prediction :math:`(\\bar x, P)` for the sightings at step ``e`` to correct, or None:
+        FastSLAM 1.0 (the poses stay as step 1 drew them; the weights are the sightings' likelihoods)."""
         return None
 
 
@@ -30,13 +31,10 @@ class ImprovedProposal(MotionProposal):
         run.x_start = run.particles.poses.copy()
         return super().move(run, s, e, n_record)
 
-    def weigh(self, run, s, e, sightings):
+    def prediction(self, run, s, e):
         if run.x_start is None:  # the poses were moved by a hook (a kidnap): no motion to condition on
             return None
-        u, dt = run.u[s : e + 1], run.dt[s : e + 1]
-        x_bar, P = motion_prediction(run.x_start, *segment_motion(u, dt, run.params.motion_noise))
-        return sample_improved_poses(run.particles, sightings, x_bar, P, gate_chi2=run.gate.chi2,
-                                     rng=run.rng, min_count=2 if run.update_map else 1)
+        return motion_prediction_of(run.x_start, run.u[s : e + 1], run.dt[s : e + 1], run.settings)
 
 
 class KnownPoses(MotionProposal):
