@@ -97,9 +97,9 @@ from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association_history import best_history, merge_copies
 from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
 from fastslam_edu.landmark.association_params import AssociationParams, MapParticles, initial_particles
-from fastslam_edu.landmark.fastslam_step import (copy_row, motion_prediction_of, normalise_weights, pose_covariance,
-                                                 resampling_indices, sample_segment, standard_normals,
-                                                 weighted_mean_pose)
+from fastslam_edu.landmark.fastslam_step import (copy_order, copy_row, is_increasing, motion_prediction_of,
+                                                 normalise_weights, pose_covariance, resampling_indices,
+                                                 sample_segment, standard_normals, weighted_mean_pose)
 from fastslam_edu.landmark.joint_compatibility import joint_slots
 from fastslam_edu.landmark.landmark_existence import (add_landmark, existence_log_odds, negative_evidence,
                                                      retire_landmarks)
@@ -235,30 +235,35 @@ def apply_associations(P, m, instant, chosen, rules, next_ident, out):
 
 @njit(cache=True)
 def select_maps(P, idx):
-    """Resampling: particles ``idx`` replace the set (maps copied), log weights 0."""
-    take_particles(P.poses, idx)
-    take_particles(P.mu, idx)
-    take_particles(P.sigma, idx)
-    take_particles(P.n, idx)
-    take_particles(P.ident, idx)
-    take_particles(P.seen, idx)
-    take_particles(P.missed, idx)
-    take_particles(P.evidence, idx)
-    take_particles(P.log_odds, idx)
-    take_particles(P.last_t, idx)
-    take_particles(P.first_t, idx)
+    """Resampling: particles ``idx`` replace the set (maps copied), log weights 0, as
+    :func:`fastslam_edu.landmark.fastslam_step.select_in_place` does for known correspondences: in place in the
+    order of :func:`~fastslam_edu.landmark.fastslam_step.copy_order` when ``idx`` increases, else from a copy."""
+    if is_increasing(idx):
+        for m in copy_order(idx):
+            copy_map_particle(P, idx[m], P, m)
+    else:
+        before = MapParticles(P.poses.copy(), P.mu.copy(), P.sigma.copy(), P.n.copy(), P.ident.copy(), P.seen.copy(),
+                              P.missed.copy(), P.evidence.copy(), P.log_odds.copy(), P.last_t.copy(),
+                              P.first_t.copy(), P.logw)
+        for m in range(idx.shape[0]):
+            copy_map_particle(before, idx[m], P, m)
     P.logw[:] = 0.0
 
 
 @njit(cache=True)
-def take_particles(a, idx):
-    """``a[:] = a[idx]`` for ``a`` (M, ...) in C order: row ``m`` becomes row ``idx[m]`` of a copy of ``a``, number
-    by number (an array assignment compiles numba's shape check and its error message: seconds of compilation)."""
-    m_count = a.shape[0]
-    before, after = a.copy().reshape(m_count, -1), a.reshape(m_count, -1)
-    for m in range(m_count):
-        for i in range(after.shape[1]):
-            after[m, i] = before[idx[m], i]
+def copy_map_particle(src, i, dst, m):
+    """Particle ``i`` of ``src``: its pose and its map (every slot, held or not) written over particle ``m`` of
+    ``dst`` (both :class:`~fastslam_edu.landmark.association_params.MapParticles`), number by number."""
+    for a in range(3):
+        dst.poses[m, a] = src.poses[i, a]
+    dst.n[m] = src.n[i]
+    for k in range(src.mu.shape[1]):
+        dst.mu[m, k, 0], dst.mu[m, k, 1] = src.mu[i, k, 0], src.mu[i, k, 1]
+        dst.sigma[m, k, 0, 0], dst.sigma[m, k, 0, 1] = src.sigma[i, k, 0, 0], src.sigma[i, k, 0, 1]
+        dst.sigma[m, k, 1, 0], dst.sigma[m, k, 1, 1] = src.sigma[i, k, 1, 0], src.sigma[i, k, 1, 1]
+        dst.ident[m, k], dst.seen[m, k], dst.missed[m, k] = src.ident[i, k], src.seen[i, k], src.missed[i, k]
+        dst.evidence[m, k], dst.log_odds[m, k] = src.evidence[i, k], src.log_odds[i, k]
+        dst.last_t[m, k], dst.first_t[m, k] = src.last_t[i, k], src.first_t[i, k]
 
 
 # ---------------------------------------------------------------- the run over a log
@@ -303,6 +308,10 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
     """
     M = P.poses.shape[0]
     w = out.w
+    longest = 0
+    for r in range(segments.shape[0]):
+        longest = max(longest, segments[r, 1] - segments[r, 0] + 1)
+    normals = np.empty((longest, s.n_draws, M))  # one buffer for every segment's normals (as run_segments)
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
         a, b = L.offsets[last], L.offsets[last + 1]
@@ -313,7 +322,7 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
         if x_start is not None:
             for m in range(M):
                 copy_row(P.poses, m, x_start[m])
-        eps = np.empty((last - first + 1, s.n_draws, M))
+        eps = normals[:last - first + 1]
         standard_normals(rng, eps)
         sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, w,
                        out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
@@ -445,7 +454,7 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
 
 
 __all__ = ["INSTANTS_DONE", "MAPS_RESAMPLED", "LANDMARKS_CREATED", "N_ASSOCIATION_TOTALS", "choose_landmarks",
-           "associate_particle", "associate_particle_improved", "apply_associations", "select_maps", "take_particles", "AssociationRecord", "run_unknown_segments", "AssociationResult",
-           "run_unknown"]
+           "associate_particle", "associate_particle_improved", "apply_associations", "select_maps",
+           "copy_map_particle", "AssociationRecord", "run_unknown_segments", "AssociationResult", "run_unknown"]
 # Chapter 19 (notebooks/19_hidden_barcodes.ipynb) imports AssociationParams, initial_particles and
 # new_landmark_loglik from here: this module uses them, so they stay importable from it.

@@ -381,26 +381,43 @@ def copy_particle(src, i, dst, m):
 
 
 @njit(cache=True)
+def is_increasing(idx):
+    """Whether ``idx`` (M,) never decreases (as the resamplers draw it)."""
+    for m in range(1, idx.shape[0]):
+        if idx[m - 1] > idx[m]:
+            return False
+    return True
+
+
+@njit(cache=True)
+def copy_order(idx):
+    """The particles ``m`` that resampling to ``idx`` (M,) overwrites (``idx[m] != m``), in an order that never
+    reads a particle after overwriting it, for ``idx`` increasing (:func:`is_increasing`): those that move down
+    (``idx[m] > m``) in increasing ``m``, then those that move up (``idx[m] < m``) in decreasing ``m``; a particle
+    ``p`` read by the second pass has ``idx[p] <= p``, so the first did not write it."""
+    order = np.empty(idx.shape[0], dtype=np.int64)
+    n = 0
+    for m in range(idx.shape[0]):
+        if idx[m] > m:
+            order[n] = m
+            n += 1
+    for m in range(idx.shape[0] - 1, -1, -1):
+        if idx[m] < m:
+            order[n] = m
+            n += 1
+    return order[:n]
+
+
+@njit(cache=True)
 def select_in_place(P, idx):
     """The particles ``idx`` replace the set, their maps copied (no two offspring share memory); log weights 0.
 
-    The resamplers draw ``idx`` in increasing order. Then no copy overwrites a particle
-    still to be copied if the particles that move down (``idx[m] > m``) are copied first,
-    in increasing ``m``, and those that move up (``idx[m] < m``) next, in decreasing ``m``:
-    a particle ``p`` read by the second pass has ``idx[p] <= p``, so the first did not
-    write it. Each moved particle is copied once, with no temporary set. Other orders:
-    through a copy of the set.
+    The resamplers draw ``idx`` in increasing order: then each moved particle is copied once, in the order of
+    :func:`copy_order`, with no temporary set. Other orders: through a copy of the set.
     """
-    increasing = True
-    for m in range(1, idx.shape[0]):
-        increasing = increasing and idx[m - 1] <= idx[m]
-    if increasing:
-        for m in range(idx.shape[0]):
-            if idx[m] > m:
-                copy_particle(P, idx[m], P, m)
-        for m in range(idx.shape[0] - 1, -1, -1):
-            if idx[m] < m:
-                copy_particle(P, idx[m], P, m)
+    if is_increasing(idx):
+        for m in copy_order(idx):
+            copy_particle(P, idx[m], P, m)
     else:
         before = Particles(P.poses.copy(), P.mu.copy(), P.sigma.copy(), P.seen.copy(), P.count.copy(), P.logw)
         for m in range(idx.shape[0]):
