@@ -303,3 +303,104 @@ def test_cli_without_robot_sightings_goes_on_and_says_so(tmp_path, capsys):
     assert _cli(folder, tmp_path / "out.json", "--robots", "1,2", "--smooth") == 0
     assert "no robot-robot sighting between robots 1, 2" in capsys.readouterr().err
     assert json.loads((tmp_path / "out.json").read_text())["smoother"]["robot_sightings_used"] == 0
+
+
+def _shift_times(folder, robot: int, seconds: float) -> None:
+    """Move one robot's files ``seconds`` later (a robot of another day's recording: another dataset)."""
+    for kind in ("Odometry", "Measurement", "Groundtruth"):
+        f = folder / f"Robot{robot}_{kind}.dat"
+        lines = [line if line.startswith("#") or not line.strip() else
+                 "\t".join([repr(float(line.split("\t")[0]) + seconds), *line.split("\t")[1:]])
+                 for line in f.read_text().splitlines()]
+        f.write_text("\n".join(lines) + "\n")
+
+
+def test_cli_robots_from_different_datasets_refused_before_the_filters(team_dir, tmp_path, capsys, monkeypatch):
+    import shutil
+
+    import fastslam_edu.app.multi_robot as app_multi
+
+    mixed = tmp_path / "mixed"
+    shutil.copytree(team_dir, mixed)
+    _shift_times(mixed, 2, 86400.0)
+    monkeypatch.setattr(app_multi, "run_fastslam", lambda *a, **k: pytest.fail("the filter ran before the check"))
+    out = tmp_path / "out.json"
+    assert _cli(mixed, out, "--robots", "1,2", "--smooth") == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "robots 1 and 2 share no time" in err and "different datasets" in err, err
+    assert not out.exists()
+
+
+def test_cli_robot_without_groundtruth_hints_at_what_works(team_dir, tmp_path, capsys):
+    """Dataset 1's robots 3-5 have no groundtruth: the line names them and --x0 landmarks (which --robots takes),
+    not --groundtruth (which --robots refuses); with --x0 landmarks the run goes through."""
+    import shutil
+
+    bare = tmp_path / "bare"
+    shutil.copytree(team_dir, bare)
+    (bare / "Robot2_Groundtruth.dat").unlink()
+    (bare / "Robot3_Groundtruth.dat").unlink()
+    out = tmp_path / "out.json"
+    assert _cli(bare, out, "--robots", "1,2,3", "--smooth") == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "robot(s) 2, 3" in err and "--x0 landmarks" in err and "--groundtruth" not in err
+    assert not out.exists()
+    assert _cli(bare, out, "--robots", "1,2", "--smooth", "--x0", "landmarks") == 0
+    sm = json.loads(out.read_text())["smoother"]
+    assert sm["robots"]["2"]["path_rmse_m"] is None and sm["robots"]["1"]["path_rmse_m"] < 0.3
+
+
+def test_cli_one_pose_for_several_robots_is_refused(team_dir, tmp_path, capsys):
+    out = tmp_path / "out.json"
+    assert _cli(team_dir, out, "--robots", "1,2", "--smooth", "--x0=1,2,0") == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--x0 landmarks" in err
+    assert not out.exists()
+
+
+def test_cli_robots_gtsam_backend_refused_without_gtsam(team_dir, tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "gtsam", None)  # `import gtsam` raises ImportError
+    out = tmp_path / "out.json"
+    assert _cli(team_dir, out, "--robots", "1,2", "--smooth", "--smoother-backend", "gtsam") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "[graph]" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_cli_robots_gtsam_and_scipy_agree(team_dir, tmp_path, capsys):
+    """The same joint problem (same filter runs, same gate) solved by both backends: every JSON figure of the paths
+    and the shared map within 1 mm, the cost within 1e-6 relative, Laplace σ within 1 %; backend and seconds given."""
+    pytest.importorskip("gtsam")
+    runs = {}
+    for backend in ("scipy", "gtsam"):
+        assert _cli(team_dir, tmp_path / f"{backend}.json", "--robots", "1,2", "--smooth",
+                    "--smoother-backend", backend) == 0
+        runs[backend] = json.loads((tmp_path / f"{backend}.json").read_text())["smoother"]
+    s, g = runs["scipy"], runs["gtsam"]
+    assert (s["backend"], g["backend"]) == ("scipy", "gtsam") and s["seconds"] > 0 and g["seconds"] > 0
+    for r in ("1", "2"):
+        for key in ("path_rmse_m", "path_rmse_aligned_m", "path_mean_m", "path_max_m"):
+            assert g["robots"][r][key] == pytest.approx(s["robots"][r][key], abs=1e-3), (r, key)
+    assert sorted(g["landmark_errors_m"]) == sorted(s["landmark_errors_m"]) and len(s["landmark_errors_m"]) > 5
+    for subject, error in s["landmark_errors_m"].items():
+        assert g["landmark_errors_m"][subject] == pytest.approx(error, abs=1e-3), subject
+    for key in ("landmark_error_mean_m", "landmark_error_aligned_mean_m"):
+        assert g[key] == pytest.approx(s[key], abs=1e-3), key
+    assert g["cost"] == pytest.approx(s["cost"], rel=1e-6)
+    assert g["landmark_std_mean_m"] == pytest.approx(s["landmark_std_mean_m"], rel=0.01)
+    assert (g["robot_sightings_used"], g["measurements_used"]) == (s["robot_sightings_used"], s["measurements_used"])
+
+
+def test_run_mrclam_robots_checks_the_backend_before_the_filters(team_dir, monkeypatch):
+    import sys
+
+    import fastslam_edu.app.multi_robot as app_multi
+
+    monkeypatch.setattr(app_multi, "run_fastslam", lambda *a, **k: pytest.fail("the filter ran before the check"))
+    with pytest.raises(ValueError, match="backend must be 'scipy' or 'gtsam', got 'ceres'"):
+        app_multi.run_mrclam_robots(team_dir, (1, 2), backend="ceres")
+    monkeypatch.setitem(sys.modules, "gtsam", None)
+    with pytest.raises(ImportError, match=r"fastslam-edu\[graph\]"):
+        app_multi.run_mrclam_robots(team_dir, (1, 2), backend="gtsam")

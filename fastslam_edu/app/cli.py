@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--x0", type=_initial_pose, metavar="X,Y,THETA|landmarks",
                      help="initial pose [m, m, rad] (write --x0=X,Y,THETA when X is negative), or 'landmarks' to "
                           "find it from the first sightings of the surveyed landmarks (robots without groundtruth); "
-                          "default: groundtruth at the first step")
+                          "default: groundtruth at the first step; with --robots: 'landmarks' or the default")
     run.add_argument("--correspondences", choices=("known", "unknown"), default="known",
                      help="known: the barcodes say which landmark a sighting is (default); unknown: FastSLAM decides "
                           "per particle (fastslam_edu.landmark.association), EKF-SLAM by nearest neighbour (--filter "
@@ -318,6 +318,21 @@ def _report(summary: dict, keys, json_path) -> None:
         json_path.write_text(json.dumps(summary, indent=2))
 
 
+def _backend_available(backend) -> bool:
+    """False (after one line on stderr naming the extra to install) if ``--smoother-backend gtsam`` is asked for
+    without GTSAM: checked before any filter runs."""
+    if backend != "gtsam":
+        return True
+    from fastslam_edu.landmark.smoother_gtsam import require_gtsam
+
+    try:
+        require_gtsam()
+    except ImportError as exc:
+        print(f"fastslam-edu run: error: {exc}", file=sys.stderr)
+        return False
+    return True
+
+
 def cmd_run(args) -> int:
     from fastslam_edu.app.experiment import run_mrclam
     from fastslam_edu.landmark.fastslam import ProgressBar
@@ -326,20 +341,14 @@ def cmd_run(args) -> int:
         raise FileNotFoundError(f"--data {args.data}: no such dataset folder")
     if (args.robot is None) == (args.robots is None):
         raise ValueError("give the robot: --robot N, or --robots N,N,... (not both)")
+    if args.smoother_backend is not None and not args.smooth:
+        raise ValueError(f"--smoother-backend {args.smoother_backend} chooses the solver of --smooth: give --smooth too")
+    if not _backend_available(args.smoother_backend):
+        return 2
     if args.robots is not None and len(args.robots) == 1:
         args.robot = args.robots[0]  # the same run as --robot
     elif args.robots is not None:
         return cmd_run_robots(args)
-    if args.smoother_backend is not None and not args.smooth:
-        raise ValueError(f"--smoother-backend {args.smoother_backend} chooses the solver of --smooth: give --smooth too")
-    if args.smoother_backend == "gtsam":
-        from fastslam_edu.landmark.smoother_gtsam import require_gtsam
-
-        try:
-            require_gtsam()
-        except ImportError as exc:  # before the filter runs: one line, exit 2
-            print(f"fastslam-edu run: error: {exc}", file=sys.stderr)
-            return 2
     if args.filter == "ekf":
         return cmd_run_ekf(args)
     if args.correspondences == "unknown":
@@ -372,24 +381,29 @@ def cmd_run(args) -> int:
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))
     if args.plot:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        from fastslam_edu.evaluation import metrics
-        from fastslam_edu.app.plotting import run_figure
-
-        log, dataset = ctx["log"], ctx["dataset"]
-        errs = None
-        if log.groundtruth is not None:
-            gt = log.groundtruth
-            t_gt = gt["time"].to_numpy()
-            m = (result.t >= t_gt[0]) & (result.t <= t_gt[-1])
-            e = metrics.trajectory_errors(result.t[m], result.pose_mean[m], t_gt, gt[["x", "y", "theta"]].to_numpy())
-            errs = (result.t[m], e["errors"])
-        fig = run_figure(result, dataset.landmark_positions, log.groundtruth, errs,
-                         title=f"{args.data.name} robot {args.robot}, M={args.particles}, seed {args.seed}")
-        fig.savefig(args.plot, dpi=120)
+        _save_run_figure(args, result, ctx)
     return 0
+
+
+def _save_run_figure(args, result, ctx) -> None:
+    """``--plot``: the FastSLAM run's map, path and errors against groundtruth (where there is some), as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from fastslam_edu.evaluation import metrics
+    from fastslam_edu.app.plotting import run_figure
+
+    log, dataset = ctx["log"], ctx["dataset"]
+    errs = None
+    if log.groundtruth is not None:
+        gt = log.groundtruth
+        t_gt = gt["time"].to_numpy()
+        m = (result.t >= t_gt[0]) & (result.t <= t_gt[-1])
+        e = metrics.trajectory_errors(result.t[m], result.pose_mean[m], t_gt, gt[["x", "y", "theta"]].to_numpy())
+        errs = (result.t[m], e["errors"])
+    fig = run_figure(result, dataset.landmark_positions, log.groundtruth, errs,
+                     title=f"{args.data.name} robot {args.robot}, M={args.particles}, seed {args.seed}")
+    fig.savefig(args.plot, dpi=120)
 
 
 def cmd_run_robots(args) -> int:
@@ -401,25 +415,27 @@ def cmd_run_robots(args) -> int:
     given = [name for name, used in (("--filter ekf", args.filter != "fastslam"),
                                      ("--correspondences unknown", args.correspondences != "known"),
                                      ("--mode", args.mode != "slam"), ("--groundtruth", args.groundtruth is not None),
-                                     ("--plot", args.plot is not None),
-                                     ("--smoother-backend", getattr(args, "smoother_backend", None) not in (None, "scipy")))
-             if used]
+                                     ("--plot", args.plot is not None)) if used]
     if given:
         raise ValueError(f"{', '.join(given)}: not available with several robots (--robots)")
     if not args.smooth:
         raise ValueError("--robots with several robots solves them together: add --smooth (or give one robot)")
+    if args.x0 is not None and not isinstance(args.x0, str):
+        raise ValueError("--x0 X,Y,THETA is one robot's start: with several robots, give --x0 landmarks "
+                         "(each robot's start from the surveyed landmarks) or nothing (groundtruth at the first step)")
     defaults = FastSLAMParams()
     params = defaults.replace(n_particles=defaults.n_particles if args.particles is None else args.particles,
                               resampler=args.resampler or defaults.resampler, proposal=args.proposal)
     _, summary, _ = run_mrclam_robots(args.data, args.robots, params, args.seed, rate=args.rate, x0=args.x0,
-                                      audit=not args.no_audit, hooks=() if args.quiet else (ProgressBar(),))
+                                      audit=not args.no_audit, hooks=() if args.quiet else (ProgressBar(),),
+                                      backend=args.smoother_backend or "scipy")
     summary["filter"] = "fastslam"
     for note in summary["notes"]:
         print(f"note: {note}", file=sys.stderr)
     sm = summary["smoother"]
     rows = [(f"robot{r}.{k}", fig.get(k)) for r, fig in sm["robots"].items() for k in ("path_rmse_m", "path_rmse_aligned_m")]
     rows += [(f"smoother.{k}", sm.get(k)) for k in ("landmark_error_mean_m", "landmark_error_aligned_mean_m",
-                                                  "robot_sightings_used", "robot_sightings_gated", "smoother_seconds")]
+                                                  "robot_sightings_used", "robot_sightings_gated", "backend", "seconds")]
     _print_rows(rows)
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))

@@ -147,8 +147,9 @@ def check_robot_numbers(robots) -> tuple:
     return tuple(numbers)
 
 
-def _check_streams(streams: dict) -> None:
-    """Same landmark table and overlapping time spans (else the logs are from different datasets)."""
+def check_streams(streams: dict) -> None:
+    """Same landmark table and overlapping time spans (else the logs are from different datasets); each stream with
+    at least 2 steps and an initial pose. One-line ValueError naming the robot(s)."""
     robots = list(streams)
     first = streams[robots[0]]
     for a in robots:
@@ -444,7 +445,7 @@ def smooth_robots(
     x0s = _per_robot(x0, robots, "x0", None)
     stds = _per_robot(x0_std, robots, "x0_std", PRIOR_STD)
     streams = {a: streams[a] if x0s[a] is None else _with_x0(streams[a], x0s[a]) for a in robots}
-    _check_streams(streams)
+    check_streams(streams)
     if initial is not None and not isinstance(initial, dict):
         raise ValueError("smooth_robots: initial must be a dict robot → FastSLAMResult")
     initial = _per_robot(initial, robots, "initial", None)
@@ -562,5 +563,5 @@ def _joint_start(problem, robots, own, starts, slot, column, n_landmarks: int) -
     return np.concatenate([poses.ravel(), (lms / np.maximum(count, 1)[:, None]).ravel()])
 
 
-__all__ = ["ROBOTS", "MultiRobotResult", "check_robot_numbers", "compose", "compose_jacobian", "keyframe_offsets",
-           "laplace_landmarks", "robot_sighting_table", "robot_sighting_weights", "smooth_robots"]
+__all__ = ["ROBOTS", "MultiRobotResult", "check_robot_numbers", "check_streams", "compose", "compose_jacobian",
+           "keyframe_offsets", "laplace_landmarks", "robot_sighting_table", "robot_sighting_weights", "smooth_robots"]
