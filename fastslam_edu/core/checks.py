@@ -32,6 +32,11 @@ def finite_array(name: str, a, caller: str, trailing: tuple[int, ...] = (), dtyp
     return a
 
 
+def array_summary(a) -> str:
+    """A short printable form of an array for error messages (at most 12 entries shown, 6 digits)."""
+    return np.array2string(np.asarray(a), threshold=12, edgeitems=3, precision=6)
+
+
 def float_array(a, name: str) -> np.ndarray:
     """``a`` as a float array; a ValueError naming ``name`` if it is not numeric."""
     try:

@@ -54,6 +54,8 @@ from collections.abc import Callable
 import numpy as np
 from numba import njit
 
+from fastslam_edu.core.checks import array_summary
+
 __all__ = [
     "WEIGHT_SUM_TOLERANCE",
     "validate_weights",
@@ -78,10 +80,6 @@ WEIGHT_SUM_TOLERANCE = 1e-8
 
 #: Largest double below 1: positions are clipped to ``[0, _BELOW_ONE]``.
 _BELOW_ONE = float(np.nextafter(1.0, 0.0))
-
-
-def _summary(a: np.ndarray) -> str:
-    return np.array2string(np.asarray(a), threshold=12, edgeitems=3, precision=6)
 
 
 def validate_weights(w) -> np.ndarray:
@@ -118,13 +116,13 @@ def validate_weights(w) -> np.ndarray:
         raise ValueError(f"weights must be a non-empty 1-D array (one weight per particle), got shape {w.shape}")
     n_nan = int(np.count_nonzero(np.isnan(w)))
     if n_nan:
-        raise ValueError(f"weights contain {n_nan} NaN value(s) out of {w.size}: w = {_summary(w)}")
+        raise ValueError(f"weights contain {n_nan} NaN value(s) out of {w.size}: w = {array_summary(w)}")
     if not np.all(np.isfinite(w)):
-        raise ValueError(f"weights contain infinite values: w = {_summary(w)}")
+        raise ValueError(f"weights contain infinite values: w = {array_summary(w)}")
     if np.any(w < 0):
         raise ValueError(
             f"weights contain {int(np.count_nonzero(w < 0))} negative value(s) "
-            f"(min {w.min():.6g}): w = {_summary(w)}"
+            f"(min {w.min():.6g}): w = {array_summary(w)}"
         )
     total = float(np.sum(w))
     if abs(total - 1.0) > WEIGHT_SUM_TOLERANCE:

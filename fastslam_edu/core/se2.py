@@ -183,23 +183,23 @@ def compose_increments(x0, increments) -> np.ndarray:
     ----------
     x0 : array_like, shape (3,)
         Start pose.
-    increments : array_like, shape (K, 3)
-        ``u_1 … u_K``, each in the frame of the previous pose.
+    increments : array_like, shape (n, 3)
+        ``u_1 … u_n``, each in the frame of the previous pose.
 
     Returns
     -------
-    ndarray, shape (K + 1, 3)
-        ``x_0, x_1, …, x_K`` (so :func:`path_increments` of the result gives back
+    ndarray, shape (n + 1, 3)
+        ``x_0, x_1, …, x_n`` (so :func:`path_increments` of the result gives back
         ``increments`` up to angle wrapping).
     """
     x0 = _poses("x0", x0, "compose_increments")
     u = _poses("increments", increments, "compose_increments")
     if x0.shape != (3,) or u.ndim != 2:
         raise ValueError(
-            f"compose_increments: x0 must have shape (3,) and increments (K, 3), got {x0.shape} and {u.shape}"
+            f"compose_increments: x0 must have shape (3,) and increments (n, 3), got {x0.shape} and {u.shape}"
         )
-    theta = x0[2] + np.concatenate([[0.0], np.cumsum(u[:, 2])])  # θ_0 … θ_K, unwrapped
-    c, s = np.cos(theta[:-1]), np.sin(theta[:-1])  # R(θ_{k−1}) for k = 1 … K
+    theta = x0[2] + np.concatenate([[0.0], np.cumsum(u[:, 2])])  # θ_0 … θ_n, unwrapped
+    c, s = np.cos(theta[:-1]), np.sin(theta[:-1])  # R(θ_{k−1}) for k = 1 … n
     steps = np.stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1]], axis=-1)
     xy = x0[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
     return np.column_stack([xy, _wrapped(theta)])

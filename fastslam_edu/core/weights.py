@@ -50,6 +50,8 @@ from typing import Literal
 import numpy as np
 from scipy.special import log_softmax, logsumexp
 
+from fastslam_edu.core.checks import array_summary
+
 __all__ = [
     "is_degenerate",
     "normalise_log_weights",
@@ -61,18 +63,13 @@ __all__ = [
 OnDegenerate = Literal["uniform", "raise"]
 
 
-def _summary(a: np.ndarray) -> str:
-    """Short printable form of an array for error messages."""
-    return np.array2string(np.asarray(a), threshold=12, edgeitems=3, precision=6)
-
-
 def _reject_nan(a: np.ndarray, name: str) -> None:
     n_nan = int(np.count_nonzero(np.isnan(a)))
     if n_nan:
         raise ValueError(
             f"{name} contains {n_nan} NaN value(s) out of {a.size} "
             f"(a log-likelihood was NaN: check the measurement, the innovation "
-            f"covariance and the particle states); {name} = {_summary(a)}"
+            f"covariance and the particle states); {name} = {array_summary(a)}"
         )
 
 
@@ -91,7 +88,7 @@ def _as_log_weights(logw, name: str = "logw") -> np.ndarray:
     if n_posinf:
         raise ValueError(
             f"{name} contains {n_posinf} value(s) equal to +inf (an infinite "
-            f"likelihood, e.g. a zero-variance density); {name} = {_summary(a)}"
+            f"likelihood, e.g. a zero-variance density); {name} = {array_summary(a)}"
         )
     return a
 
@@ -162,7 +159,7 @@ def normalise_log_weights(logw, *, on_degenerate: OnDegenerate = "uniform") -> n
             raise ValueError(
                 f"all {m} log-weights are -inf in {n_bad} row(s) (every particle's "
                 f"likelihood underflowed or is exactly zero), so the weights are 0/0; "
-                f"logw = {_summary(a)}"
+                f"logw = {array_summary(a)}"
             )
     # a degenerate row becomes all zeros, whose log-softmax is -log M (uniform)
     return log_softmax(np.where(degenerate, 0.0, a), axis=-1)
@@ -228,12 +225,12 @@ def effective_sample_size(w) -> np.ndarray | float:
         raise ValueError(f"w must have a non-empty particle axis, got shape {w.shape}")
     _reject_nan(w, "w")
     if not np.all(np.isfinite(w)):
-        raise ValueError(f"w contains infinite values: w = {_summary(w)}")
+        raise ValueError(f"w contains infinite values: w = {array_summary(w)}")
     if np.any(w < 0):
-        raise ValueError(f"w contains {int(np.count_nonzero(w < 0))} negative weight(s): w = {_summary(w)}")
+        raise ValueError(f"w contains {int(np.count_nonzero(w < 0))} negative weight(s): w = {array_summary(w)}")
     total = np.sum(w, axis=-1)
     if np.any(total <= 0):
-        raise ValueError(f"all weights are zero in at least one row: N_eff is undefined; w = {_summary(w)}")
+        raise ValueError(f"all weights are zero in at least one row: N_eff is undefined; w = {array_summary(w)}")
     w = w / total[..., None]  # scale first: avoids overflow/underflow of Σw²
     out = 1.0 / np.sum(w * w, axis=-1)
     return out if out.ndim else float(out)

@@ -200,7 +200,7 @@ def _window(t: np.ndarray, t_start: float | None, t_end: float | None) -> np.nda
     return keep
 
 
-def _initial_pose(log: RobotLog, t0: float, x0) -> np.ndarray | None:
+def _start_pose(log: RobotLog, t0: float, x0) -> np.ndarray | None:
     if x0 is not None:
         x0 = np.asarray(x0, dtype=float)
         if x0.shape != (3,) or not np.isfinite(x0).all():
@@ -211,7 +211,7 @@ def _initial_pose(log: RobotLog, t0: float, x0) -> np.ndarray | None:
     return groundtruth_at(log, [t0])[0]
 
 
-def _offsets(step: np.ndarray, n_steps: int) -> np.ndarray:
+def _step_boundaries(step: np.ndarray, n_steps: int) -> np.ndarray:
     """Slice boundaries of the measurements of each step (``step`` sorted)."""
     return np.concatenate([[0], np.cumsum(np.bincount(step, minlength=n_steps))]).astype(np.int64)
 
@@ -241,10 +241,10 @@ def full_rate_stream(log: RobotLog, landmark_subjects, x0=None, t_start: float |
     step = np.searchsorted(t, meas[:, 0])
     order = np.argsort(step, kind="stable")
     return EventStream(
-        t=t, dt=dt, u=u, offsets=_offsets(step[order], t.size),
+        t=t, dt=dt, u=u, offsets=_step_boundaries(step[order], t.size),
         z=meas[order][:, 2:4].copy(),
         landmark=_landmark_index(log, subjects, meas[order][:, 1].astype(np.int64)),
-        landmark_subjects=subjects, x0=_initial_pose(log, float(t[0]), x0), rate="full",
+        landmark_subjects=subjects, x0=_start_pose(log, float(t[0]), x0), rate="full",
     )
 
 
@@ -271,10 +271,10 @@ def one_hz_stream(log: RobotLog, landmark_subjects, x0=None, t_start: float | No
     step = (meas["time"].to_numpy() - first).astype(np.int64)
     order = np.argsort(step, kind="stable")
     return EventStream(
-        t=t, dt=dt, u=u, offsets=_offsets(step[order], t.size),
+        t=t, dt=dt, u=u, offsets=_step_boundaries(step[order], t.size),
         z=meas[["range", "bearing"]].to_numpy(dtype=float)[order],
         landmark=_landmark_index(log, subjects, meas["subject"].to_numpy(dtype=np.int64)[order]),
-        landmark_subjects=subjects, x0=_initial_pose(log, float(t[0]), x0), rate="1hz",
+        landmark_subjects=subjects, x0=_start_pose(log, float(t[0]), x0), rate="1hz",
     )
 
 

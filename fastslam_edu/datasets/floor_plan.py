@@ -77,7 +77,7 @@ class FloorPlan:
         return best
 
 
-def _box(x0: float, y0: float, x1: float, y1: float) -> list:
+def _rectangle_walls(x0: float, y0: float, x1: float, y1: float) -> list:
     return [[(x0, y0), (x1, y0)], [(x1, y0), (x1, y1)], [(x1, y1), (x0, y1)], [(x0, y1), (x0, y0)]]
 
 
@@ -103,12 +103,12 @@ def default_floor_plan(height: float = 2.5) -> FloorPlan:
     is the world origin (:data:`DEFAULT_WAYPOINTS` starts there, heading +x).
     """
     walls = (
-        _box(0, 0, 20, 12)
+        _rectangle_walls(0, 0, 20, 12)
         + [[(0, 6), (3, 6)], [(4, 6), (8, 6)]]  # D | C, door x 3–4
         + [[(8, 0), (8, 8)], [(8, 9), (8, 12)]]  # C, D | B, door y 8–9
         + [[(13, 0), (13, 4)], [(13, 5), (13, 12)]]  # B | A, door y 4–5
-        + _box(17.5, 9.0, 18.5, 10.0)  # pillar in A
-        + _box(10.0, 1.0, 11.5, 2.0)  # cabinet in B
+        + _rectangle_walls(17.5, 9.0, 18.5, 10.0)  # pillar in A
+        + _rectangle_walls(10.0, 1.0, 11.5, 2.0)  # cabinet in B
     )
     return FloorPlan(np.array(walls, dtype=float) - _START, height)
 

@@ -78,7 +78,7 @@ class SimConfig:
     odometry_rate : float
         Mean odometry rate [Hz] (MR.CLAM: ~67 Hz); intervals are jittered ±50 %.
     n_landmarks : int
-        Number of landmarks K; their subjects are ``6 … 5 + K``.
+        Number of landmarks N; their subjects are ``6 … 5 + N``.
     arena : (float, float)
         Width (x) and height (y) of the arena [m], centred at the origin.
     n_robots : int
@@ -189,7 +189,7 @@ def place_landmarks(rng: np.random.Generator, config: SimConfig) -> np.ndarray:
 
     Returns
     -------
-    ndarray, shape (K, 2) [m]
+    ndarray, shape (N, 2) [m]
     """
     half = np.array(config.arena) / 2 - config.margin
     placed: list[np.ndarray] = []
@@ -228,15 +228,15 @@ def drive(rng: np.random.Generator, config: SimConfig, t: np.ndarray) -> tuple[n
 
     Parameters
     ----------
-    t : ndarray, shape (N,)
+    t : ndarray, shape (T,)
         Odometry times relative to the start [s].
 
     Returns
     -------
-    u : ndarray, shape (N, 2)
+    u : ndarray, shape (T, 2)
         True commands ``(v, ω)``.
-    poses : ndarray, shape (N + 1, 3)
-        True poses at ``t_0 … t_{N-1}`` and at ``duration``, θ wrapped.
+    poses : ndarray, shape (T + 1, 3)
+        True poses at ``t_0 … t_{T-1}`` and at ``duration``, θ wrapped.
     """
     half = np.array(config.arena) / 2 - config.margin
     px, py = rng.uniform(-half, half)
@@ -275,7 +275,7 @@ def poses_at(times: np.ndarray, t: np.ndarray, u: np.ndarray, poses: np.ndarray)
     times : ndarray, shape (n,)
         Query times in ``[0, duration]`` relative to the start [s].
     t, u, poses
-        Odometry times (N,), commands (N, 2) and poses (N + 1, 3) from :func:`drive`.
+        Odometry times (T,), commands (T, 2) and poses (T + 1, 3) from :func:`drive`.
 
     Returns
     -------
@@ -290,7 +290,7 @@ def poses_at(times: np.ndarray, t: np.ndarray, u: np.ndarray, poses: np.ndarray)
 def corrupt_odometry(rng: np.random.Generator, u: np.ndarray, dt: np.ndarray, noise: MotionNoise) -> np.ndarray:
     """Odometry readings: ``û_i = u_i + (σ_v, σ_ω) / √Δt_i · ε_i``, ε_i ~ N(0, I₂).
 
-    Always draws (N, 2) normals, so the random stream does not depend on the noise level.
+    Always draws (T, 2) normals, so the random stream does not depend on the noise level.
     """
     eps = rng.standard_normal(u.shape)
     return u + eps * np.array([noise.sigma_v, noise.sigma_omega]) / np.sqrt(dt)[:, None]
@@ -310,7 +310,7 @@ def measure(
     time, landmark_index, r, phi : ndarrays, shape (n,)
         Ordered by frame, then landmark index.
     """
-    z = range_bearing(frame_poses[:, None, :], landmarks[None, :, :])  # (N, K, 2)
+    z = range_bearing(frame_poses[:, None, :], landmarks[None, :, :])  # (frames, N, 2)
     r, phi = z[..., 0], z[..., 1]
     visible = (r >= config.min_range) & (r <= config.max_range) & (phi >= config.fov[0]) & (phi <= config.fov[1])
     frame, k = np.nonzero(visible)
@@ -426,7 +426,7 @@ def simulate_dataset(seed_or_rng: int | np.random.Generator, config: SimConfig |
         ``path=None``; ``landmarks`` holds the true landmark positions (index
         ``subject``, columns ``x, y, x_std, y_std``, std 0); ``robots[r]`` holds
         robot ``r``'s odometry (noisy commands), measurements (subjects
-        6 … 5 + K) and groundtruth (true poses). Times start at ``config.t0``.
+        6 … 5 + N) and groundtruth (true poses). Times start at ``config.t0``.
 
     Examples
     --------

@@ -229,8 +229,8 @@ def walking_path(waypoints, t, *, turn_rate: float = 0.5, moving=None) -> np.nda
 
     Parameters
     ----------
-    waypoints : array_like, shape (K, 2)
-        ``K ≥ 2`` points [m]; consecutive points distinct.
+    waypoints : array_like, shape (n, 2)
+        ``n ≥ 2`` points [m]; consecutive points distinct.
     t : array_like, shape (N,)
         Increasing times [s].
     turn_rate : float
@@ -247,7 +247,7 @@ def walking_path(waypoints, t, *, turn_rate: float = 0.5, moving=None) -> np.nda
     w = np.asarray(waypoints, dtype=float)
     t = np.asarray(t, dtype=float)
     if w.ndim != 2 or w.shape[1] != 2 or len(w) < 2 or not np.isfinite(w).all():
-        raise ValueError(f"walking_path: waypoints must be finite (K, 2) with K ≥ 2, got shape {w.shape}")
+        raise ValueError(f"walking_path: waypoints must be finite (n, 2) with n ≥ 2, got shape {w.shape}")
     if t.ndim != 1 or t.size < 2 or not np.isfinite(t).all() or (np.diff(t) <= 0).any():
         raise ValueError("walking_path: t must be finite, increasing, with at least 2 times")
     if not (math.isfinite(turn_rate) and turn_rate > 0):
@@ -388,7 +388,7 @@ def simulate_thor(
     config : ThorSimConfig, optional
     plan : FloorPlan, optional
         Default :func:`default_floor_plan`.
-    waypoints : array_like (K, 2), optional
+    waypoints : array_like (n, 2), optional
         The tour, default :data:`DEFAULT_WAYPOINTS`.
 
     Returns

@@ -16,7 +16,7 @@ A mean above the interval means the filter is **overconfident**: its errors
 are larger than it believes.
 
 For FastSLAM the pose estimate and its covariance are those of the particle
-cloud (:func:`pose_covariance`: the weighted mean and covariance of the
+cloud (:func:`pose_mean_and_covariance`: the weighted mean and covariance of the
 particles' poses, headings averaged on the circle); the map's are those of the
 mixture of the particles' landmark EKFs
 (:func:`fastslam_edu.landmark.particle_set.combined_map`). :class:`SpreadRecorder` collects
@@ -42,7 +42,7 @@ __all__ = [
     "nees",
     "nees_interval",
     "pose_error",
-    "pose_covariance",
+    "pose_mean_and_covariance",
     "align_pose",
     "SpreadRecorder",
     "simulator_params",
@@ -117,7 +117,7 @@ def pose_error(estimate, truth) -> np.ndarray:
     return e
 
 
-def pose_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
+def pose_mean_and_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean and covariance of a particle cloud of poses.
 
     :math:`\\bar x = \\sum_m w^{[m]} x^{[m]}` with the circular mean for the heading
@@ -141,9 +141,9 @@ def pose_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(poses, dtype=float)
     w = np.asarray(w, dtype=float)
     if x.ndim != 2 or x.shape[1] != 3 or w.shape != (x.shape[0],):
-        raise ValueError(f"pose_covariance: poses (M, 3) and w (M,) expected, got {x.shape} and {w.shape}")
+        raise ValueError(f"pose_mean_and_covariance: poses (M, 3) and w (M,) expected, got {x.shape} and {w.shape}")
     if not abs(w.sum() - 1.0) < 1e-9 or (w < 0).any():
-        raise ValueError(f"pose_covariance: w must be non-negative and sum to 1, sum is {w.sum()!r}")
+        raise ValueError(f"pose_mean_and_covariance: w must be non-negative and sum to 1, sum is {w.sum()!r}")
     x, w = np.ascontiguousarray(x), np.ascontiguousarray(w)
     mean = np.empty(3)
     weighted_mean_pose(x, w, mean)
@@ -176,7 +176,7 @@ class SpreadRecorder:
     record per time, so runs over different logs line up (two times with no
     sighting between them get the same step; times after the last measurement
     step get none). A record is the step's time, the cloud's mean pose and
-    covariance (:func:`pose_covariance`) and, with ``maps=True``, the combined
+    covariance (:func:`pose_mean_and_covariance`) and, with ``maps=True``, the combined
     map (:func:`fastslam_edu.landmark.particle_set.combined_map`: means (N, 2), covariances
     (N, 2, 2), observed (N,)). It reads the particles and never writes them.
 
@@ -197,7 +197,7 @@ class SpreadRecorder:
                 copies += 1
             if copies == 0:
                 return
-        mean, cov = pose_covariance(particles.poses, w)
+        mean, cov = pose_mean_and_covariance(particles.poses, w)
         spread = combined_map(particles.to_particle_set()) if self._maps else None  # dense, also for tree maps
         for _ in range(copies):
             self.t.append(float(t))
@@ -220,3 +220,8 @@ def simulator_params(config: SimConfig | None = None, **changes) -> FastSLAMPara
     return FastSLAMParams().replace(motion_noise=c.odometry_noise,
                        measurement_cov=np.diag([c.range_std**2, c.bearing_std**2]), range_std_slope=0.0,
                        measurement_correlation_s=None, **changes)
+
+
+#: The old name of :func:`pose_mean_and_covariance` (issue 30: ``fastslam_step.pose_covariance`` is the covariance
+#: alone), for ``tests/test_consistency.py``; drop it when that file imports the new name.
+pose_covariance = pose_mean_and_covariance

@@ -59,7 +59,7 @@ def _landmark_pair(estimate, truth, observed) -> tuple[np.ndarray, np.ndarray, n
     est = point_rows(estimate, "estimate", allow_nan=True)
     tru = point_rows(truth, "truth", allow_nan=True)
     if est.shape != tru.shape:
-        raise ValueError(f"estimate and truth must have the same shape (K, 2), got {est.shape} and {tru.shape}")
+        raise ValueError(f"estimate and truth must have the same shape (N, 2), got {est.shape} and {tru.shape}")
     mask = _observed_mask(observed, est.shape[0])
     for name, p in (("estimate", est), ("truth", tru)):
         missing = mask & np.isnan(p).any(axis=1)
@@ -79,17 +79,17 @@ def landmark_errors(estimate, truth, observed=None) -> np.ndarray:
 
     Parameters
     ----------
-    estimate : array_like, shape (K, 2)
+    estimate : array_like, shape (N, 2)
         Estimated landmark positions ``μ̂_k`` (e.g. the particle-weighted mean);
         rows of landmarks never observed may be NaN.
-    truth : array_like, shape (K, 2)
+    truth : array_like, shape (N, 2)
         Groundtruth positions ``m_k`` in the same index order.
-    observed : array_like of bool, shape (K,), optional
+    observed : array_like of bool, shape (N,), optional
         Which landmarks have an estimate (default: all).
 
     Returns
     -------
-    ndarray, shape (K,)
+    ndarray, shape (N,)
         ``e_k`` for observed landmarks, **NaN** for the others.
 
     Raises
@@ -132,7 +132,7 @@ def landmark_errors_aligned(estimate, truth, observed=None) -> np.ndarray:
 
     Returns
     -------
-    ndarray, shape (K,)
+    ndarray, shape (N,)
         Aligned errors [m], NaN for unobserved landmarks.
     """
     est, tru, mask = _landmark_pair(estimate, truth, observed)

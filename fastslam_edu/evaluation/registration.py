@@ -113,7 +113,7 @@ def pairs_by_distance(B):
 
 
 #: Each map landmark proposes motions with this many others: its nearest ones at least ``min_baseline`` away. With
-#: every pair, a map of L landmarks would make of the order of L² × K² proposals (K surveyed); one right pair is
+#: every pair, a map of L landmarks would make of the order of L² × N² proposals (N surveyed); one right pair is
 #: enough, so a few partners per landmark keep the proposals linear in L (a map full of spurious landmarks is scored
 #: too).
 PARTNERS = 4
@@ -157,7 +157,7 @@ def consensus_motion(A, B, radius, min_baseline):
 
 def register(estimate, truth, radius: float = 0.5, min_baseline: float = 1.0):
     """``(R (2, 2), t (2,))``: the motion :math:`p \\mapsto R p + t` that lays the map ``estimate`` (L, 2) [m] on the
-    surveyed landmarks ``truth`` (K, 2) [m], or None if no two map landmarks propose one: :func:`consensus_motion`,
+    surveyed landmarks ``truth`` (N, 2) [m], or None if no two map landmarks propose one: :func:`consensus_motion`,
     refitted by least squares (:func:`fastslam_edu.core.se2.align_se2`) to the map landmarks it lays
     within ``radius`` of a surveyed one, each paired with the nearest."""
     A = np.ascontiguousarray(finite_array("estimate", estimate, "register", (2,)).reshape(-1, 2))

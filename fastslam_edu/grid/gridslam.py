@@ -5,7 +5,7 @@ The write-up (a course project on THOR humanoid LiDAR) runs, for every scan
 
 1. **Propagate** every particle with the odometry and noise,
    ``x_k^{[i]} = x_{k−1}^{[i]} ⊕ (u_k + ε_k^{[i]})``
-   (:func:`fastslam_edu.grid.motion.sample_motion`).
+   (:func:`fastslam_edu.grid.motion.sample_odometry_motion`).
 2. **Weigh** it by the *map correlation* of its scan with the current map,
    ``w^{[i]} ∝ w^{[i]} · exp(c^{[i]} / T)``, ``c^{[i]} = Σ_{b} m(cell(y_b^{[i]}))``:
    the number of beam endpoints ``y_b^{[i]}`` (scan ``z_k`` projected from
@@ -73,7 +73,7 @@ from fastslam_edu.core.params import Params
 from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.se2 import compose_increments, transform_points
 from fastslam_edu.core.weights import effective_sample_size, normalise_log_weights
-from fastslam_edu.grid.motion import sample_motion
+from fastslam_edu.grid.motion import sample_odometry_motion
 from fastslam_edu.grid.scan_matching import correlation, correlation_kernel, endpoint_cells, scan_match
 
 __all__ = [
@@ -483,7 +483,7 @@ class GridRun:
     def weigh(self, k: int, u, scan, rng: np.random.Generator) -> np.ndarray:
         """Steps 1–3 at scan ``k``: propagate (and scan-match), weigh by map correlation, normalise; returns w (M,)."""
         r, a = scan
-        self.particles = sample_motion(self.particles, u, self.params, rng)
+        self.particles = sample_odometry_motion(self.particles, u, self.params, rng)
         if self.params.match_iterations:  # optional: climb to the scan's best fit
             self.particles = scan_match(self.particles, self.current_maps(), self.grid, r, a, self.params, self.offset)
         rows, cols = endpoint_cells(self.grid, scan_endpoints(self.particles, r, a, self.offset))

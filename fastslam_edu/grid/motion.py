@@ -25,7 +25,7 @@ from fastslam_edu.core.se2 import compose
 if TYPE_CHECKING:  # only for the annotations: gridslam imports this module
     from fastslam_edu.grid.gridslam import GridSLAMParams
 
-__all__ = ["increment_noise_std", "sample_motion"]
+__all__ = ["increment_noise_std", "sample_odometry_motion"]
 
 
 def increment_noise_std(u, params: GridSLAMParams) -> np.ndarray:
@@ -55,7 +55,7 @@ def increment_noise_std(u, params: GridSLAMParams) -> np.ndarray:
     return np.stack([st, st, sr], axis=-1)
 
 
-def sample_motion(particles, u, params: GridSLAMParams, rng: np.random.Generator) -> np.ndarray:
+def sample_odometry_motion(particles, u, params: GridSLAMParams, rng: np.random.Generator) -> np.ndarray:
     """Propagate all particles with one noisy increment: ``x_k^{[i]} = x_{k−1}^{[i]} ⊕ (u_k + ε^{[i]})``.
 
     ``ε^{[i]} = σ ⊙ n^{[i]}``, ``n^{[i]} ~ N(0, I₃)`` with ``σ`` from
@@ -74,7 +74,12 @@ def sample_motion(particles, u, params: GridSLAMParams, rng: np.random.Generator
     """
     particles = np.asarray(particles, dtype=float)
     if particles.ndim != 2 or particles.shape[1] != 3:
-        raise ValueError(f"sample_motion: particles must have shape (M, 3), got {particles.shape}")
+        raise ValueError(f"sample_odometry_motion: particles must have shape (M, 3), got {particles.shape}")
     sigma = increment_noise_std(u, params)
     noise = rng.standard_normal(particles.shape) * sigma
     return compose(particles, np.asarray(u, dtype=float) + noise)
+
+
+#: The old name of :func:`sample_odometry_motion` (``core.motion.sample_motion`` is the velocity model's), for
+#: ``notebooks/17_grid_slam.ipynb`` and ``tests/test_gridslam.py``; drop it when they import the new name.
+sample_motion = sample_odometry_motion

@@ -63,9 +63,9 @@ def correlation_kernel(hit_sigma: float, resolution: float) -> tuple[np.ndarray,
 
     Returns
     -------
-    offsets : ndarray of int64, shape (K, 2)
+    offsets : ndarray of int64, shape (D, 2)
         ``(0, 0)`` first.
-    weights : ndarray, shape (K,)
+    weights : ndarray, shape (D,)
         Rounded to multiples of 1/256, so that a scan's score is the same
         whatever order its beams are summed in (vectorised or loop).
     """
@@ -105,7 +105,7 @@ def correlation(log_odds, rows, cols, threshold: float = 0.0, kernel=None) -> np
         Endpoint cells (:func:`endpoint_cells`); the last axis (beams) is summed.
     threshold : float
         Log-odds above which a cell is occupied (0: ``p > 0.5``).
-    kernel : (offsets (K, 2), weights (K,)), optional
+    kernel : (offsets (D, 2), weights (D,)), optional
 
     Returns
     -------
@@ -130,7 +130,7 @@ def hit_field(log_odds, threshold: float, kernel, window) -> np.ndarray:
     """The graded occupancy ``f(cell) = max_δ g(δ) o(cell + δ)`` on a window of cells.
 
     Precomputing ``f`` once per scan makes a candidate pose cost one lookup
-    per beam (``Σ_b f(cell(y_b))``) instead of ``K`` — what scan matching
+    per beam (``Σ_b f(cell(y_b))``) instead of ``D`` (the kernel's offsets) — what scan matching
     needs, since it scores many candidate poses per particle. ``Σ_b f`` equals
     :func:`correlation` with the same kernel for endpoints inside the window.
 
@@ -140,7 +140,7 @@ def hit_field(log_odds, threshold: float, kernel, window) -> np.ndarray:
         One map, or one per particle.
     threshold : float
         ``o(cell) = 1[l > threshold]``; cells outside the grid have ``o = 0``.
-    kernel : (offsets (K, 2), weights (K,)) or None
+    kernel : (offsets (D, 2), weights (D,)) or None
         :func:`correlation_kernel` (None: ``f = o``).
     window : (r0, r1, c0, c1)
         Rows ``r0 … r1 − 1`` and columns ``c0 … c1 − 1`` (may extend beyond the grid).
@@ -163,7 +163,7 @@ def hit_field(log_odds, threshold: float, kernel, window) -> np.ndarray:
             lo[..., gr0:gr1, gc0:gc1] > threshold
         )
     field = np.zeros(lead + (r1 - r0, c1 - c0))
-    for (dr, dc), g in zip(offsets.tolist(), weights.tolist()):  # K shifts of the window, not a loop over cells
+    for (dr, dc), g in zip(offsets.tolist(), weights.tolist()):  # D shifts of the window, not a loop over cells
         np.maximum(field, g * occ[..., rad + dr: rad + dr + r1 - r0, rad + dc: rad + dc + c1 - c0], out=field)
     return field
 

@@ -134,7 +134,7 @@ def thor_grid_slam(
 
 
 def wall_cells(plan: FloorPlan, grid: OccupancyGrid) -> np.ndarray:
-    """The grid cells the plan's wall segments pass through, ``(K, 2)`` int ``(row, col)``, unique, inside the grid.
+    """The grid cells the plan's wall segments pass through, ``(n, 2)`` int ``(row, col)``, unique, inside the grid.
 
     Each segment is sampled every ``resolution / 4`` (and at both ends), and the
     cell of every sample is taken; a segment along a cell border may pick the

@@ -9,7 +9,7 @@ The state is the pose and all :math:`N` landmarks stacked,
     \\mathbf y = (x, y, \\theta, l_{1,x}, l_{1,y}, \\dots, l_{N,x}, l_{N,y})^\\top, \\qquad
     \\mathbf y \\sim \\mathcal N(\\mu, \\Sigma),
 
-with :math:`\\mu` of shape (3 + 2K,) [m, m, rad, m, ...] and :math:`\\Sigma` (3 + 2K, 3 + 2K).
+with :math:`\\mu` of shape (3 + 2N,) [m, m, rad, m, ...] and :math:`\\Sigma` (3 + 2N, 3 + 2N).
 Landmark :math:`k` occupies rows ``3 + 2k`` and ``4 + 2k`` (:func:`~.ekf_slam_steps.landmark_slice`).
 The off-diagonal blocks are what FastSLAM does without: how the error of one
 landmark is tied to the pose's and to every other landmark's.
@@ -32,8 +32,8 @@ The filter, for each step of an event stream
    steps are composed in one (:func:`~.ekf_slam_steps.predict_segment`, equal to the step-by-step
    prediction to rounding).
 2. **A landmark seen for the first time** is initialised from the inverse model
-   :math:`m = h^{-1}(x, z)` (:func:`~.ekf_slam_steps.add_landmark`) with its cross-covariances:
-   :math:`\\Sigma_{mm} = J_x \\Sigma_{xx} J_x^\\top + G R G^\\top`, :math:`\\Sigma_{m\\cdot} = J_x \\Sigma_{x\\cdot}`
+   :math:`\\mathbf l_k = h^{-1}(x, z)` (:func:`~.ekf_slam_steps.augment_state`) with its cross-covariances:
+   :math:`\\Sigma_{kk} = J_x \\Sigma_{xx} J_x^\\top + G R G^\\top`, :math:`\\Sigma_{k\\cdot} = J_x \\Sigma_{x\\cdot}`
    (:math:`J_x = \\partial h^{-1}/\\partial x`, :math:`G = \\partial h^{-1}/\\partial z`), not table 10.1's
    "infinite prior".
 3. **Update** (table 10.1, the loop over the sightings; :func:`~.ekf_slam_steps.update`) for each sighting
@@ -206,7 +206,7 @@ class EKFSLAMResult:
     t : (T,) step times [s]
     pose_mean : (T, 3) :math:`\\mu_x` after each step (after the update at a measurement step)
     landmarks_mean, landmarks_cov, observed : (N, 2), (N, 2, 2), (N,) the map at the end (NaN where not seen)
-    mean, cov : (3 + 2K,), (3 + 2K, 3 + 2K) the final joint :math:`\\mu`, :math:`\\Sigma`
+    mean, cov : (3 + 2N,), (3 + 2N, 3 + 2N) the final joint :math:`\\mu`, :math:`\\Sigma`
     update_t, pose_cov : (n,), (n, 3, 3) time and :math:`\\Sigma_{xx}` after each measurement step
     measurements_used, measurements_rejected : counts (initialisations count as used)
     filter_seconds : wall time of the filter loop, without ``compile_seconds``

@@ -13,7 +13,7 @@ import numpy as np
 
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.core.checks import finite_array
-from fastslam_edu.landmark.ekf_slam_steps import EKFSLAMState, add_landmark
+from fastslam_edu.landmark.ekf_slam_steps import EKFSLAMState, augment_state
 
 __all__ = ["NEW", "SET_ASIDE", "association_distances", "associate", "add_new_landmark"]
 
@@ -91,7 +91,7 @@ def associate(d2: np.ndarray, new_landmark_chi2: float, gate_chi2: float | None 
 
 def add_new_landmark(state: EKFSLAMState, z, R) -> int:
     """Grow the state by one landmark (two rows and columns) and initialise it from ``z``
-    (:func:`~.ekf_slam_steps.add_landmark`).
+    (:func:`~.ekf_slam_steps.augment_state`).
 
     Returns its index. The copy costs :math:`O(N^2)`, paid once per landmark.
     """
@@ -100,5 +100,5 @@ def add_new_landmark(state: EKFSLAMState, z, R) -> int:
     mu, sigma = np.zeros(n + 2), np.zeros((n + 2, n + 2))
     mu[:n], sigma[:n, :n] = state.mu, state.sigma
     state.mu, state.sigma, state.seen = mu, sigma, np.append(state.seen, False)
-    add_landmark(state, z, N, R)
+    augment_state(state, z, N, R)
     return N

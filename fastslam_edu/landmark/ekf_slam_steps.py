@@ -7,7 +7,7 @@ The state :class:`EKFSLAMState` is :math:`\\mathcal N(\\mu, \\Sigma)` over
 1. **Prediction** (lines 2–5): :func:`predict` one step, :func:`predict_segment` many at once, with the
    Jacobian :func:`motion_jacobian` and the noise :func:`motion_noise_covariance`; only the pose's rows and
    columns change, :math:`O(N)`.
-2. **A new landmark** from the inverse model, with its cross-covariances (:func:`add_landmark`).
+2. **A new landmark** from the inverse model, with its cross-covariances (:func:`augment_state`).
 3. **The update** for one sighting (:func:`update`): innovation, gain, Joseph form (:func:`joseph_update`),
    :math:`O(N^2)`; with the gate on the squared Mahalanobis distance.
 
@@ -29,7 +29,7 @@ from fastslam_edu.core.motion import MotionNoise, dead_reckon, propagate
 from fastslam_edu.landmark.proposal import motion_prediction, segment_motion
 
 __all__ = ["INITIALISED", "UPDATED", "REJECTED", "EKFSLAMState", "landmark_slice", "motion_jacobian",
-           "motion_noise_covariance", "predict", "predict_segment", "jacobian_inverse_pose", "add_landmark",
+           "motion_noise_covariance", "predict", "predict_segment", "jacobian_inverse_pose", "augment_state",
            "measurement_jacobian", "full_measurement_jacobian", "joseph_update", "subtract_symmetric_product",
            "update", "update_unchecked", "correlation_matrix"]
 
@@ -52,9 +52,9 @@ class EKFSLAMState:
 
     Attributes
     ----------
-    mu : ndarray (3 + 2K,)
+    mu : ndarray (3 + 2N,)
         :math:`\\mu`: pose ``(x, y, θ)`` [m, m, rad] then ``(m_x, m_y)`` [m] per landmark.
-    sigma : ndarray (3 + 2K, 3 + 2K)
+    sigma : ndarray (3 + 2N, 3 + 2N)
         :math:`\\Sigma`; the rows and columns of landmarks not yet seen are zero.
     seen : ndarray (N,) bool
         Landmark ``k`` has been initialised.
@@ -230,14 +230,14 @@ def jacobian_inverse_pose(x, z) -> np.ndarray:
                      np.stack((zero, one, r * np.cos(angle)), axis=-1)), axis=-2)
 
 
-def add_landmark(state: EKFSLAMState, z, k: int, R) -> EKFSLAMState:
+def augment_state(state: EKFSLAMState, z, k: int, R) -> EKFSLAMState:
     """Initialise landmark ``k`` from sighting ``z = (r, φ)`` (2,) with noise ``R`` (2, 2), in place.
 
     :math:`\\mu_k = h^{-1}(\\mu_x, z)`; :math:`\\Sigma_{kk} = J_x \\Sigma_{xx} J_x^\\top + G R G^\\top`
     and :math:`\\Sigma_{k\\cdot} = J_x \\Sigma_{x\\cdot}` (the landmark inherits the pose's error).
     Cost :math:`O(N)`.
     """
-    _check_landmark(state, k, "add_landmark")
+    _check_landmark(state, k, "augment_state")
     x = state.mu[:3]
     Jx, G = jacobian_inverse_pose(x, z), jacobian_inverse(x, z)
     s = landmark_slice(k)
@@ -250,13 +250,18 @@ def add_landmark(state: EKFSLAMState, z, k: int, R) -> EKFSLAMState:
     return state
 
 
+#: The old name of :func:`augment_state` (``landmark_existence.add_landmark`` is FastSLAM's), for
+#: ``notebooks/05_ekf_slam.ipynb`` and ``tests/test_ekf_slam.py``; drop it when they import the new name.
+add_landmark = augment_state
+
+
 # ---------------------------------------------------------------- 3. the update
 
 
 def measurement_jacobian(state: EKFSLAMState, k: int):
     """:math:`\\hat z = h(\\mu_x, \\mu_k)` (2,) and the non-zero blocks of :math:`H_t`: :math:`G_x` (2, 3), :math:`H` (2, 2).
 
-    The full :math:`H_t` (2, 3 + 2K) is :math:`G_x` in the pose's columns, :math:`H` in landmark
+    The full :math:`H_t` (2, 3 + 2N) is :math:`G_x` in the pose's columns, :math:`H` in landmark
     ``k``'s, zero elsewhere (:func:`full_measurement_jacobian`).
     """
     x, m = state.mu[:3], state.mu[landmark_slice(k)]
@@ -265,7 +270,7 @@ def measurement_jacobian(state: EKFSLAMState, k: int):
 
 
 def full_measurement_jacobian(state: EKFSLAMState, k: int) -> np.ndarray:
-    """:math:`H_t = \\partial h / \\partial y` (2, 3 + 2K) as a dense matrix (for teaching and checks)."""
+    """:math:`H_t = \\partial h / \\partial y` (2, 3 + 2N) as a dense matrix (for teaching and checks)."""
     _, Gx, H = measurement_jacobian(state, k)
     Ht = np.zeros((2, len(state.mu)))
     Ht[:, :3], Ht[:, landmark_slice(k)] = Gx, H
@@ -312,7 +317,7 @@ def subtract_symmetric_product(sigma, A, B):
 def update(state: EKFSLAMState, z, k: int, R, *, gate_chi2: float | None = None, escape: bool = False) -> str:
     """Table 10.1's loop body for one sighting ``z = (r, φ)`` (2,) of landmark ``k`` with noise ``R`` (2, 2).
 
-    A landmark not seen yet is initialised (:func:`add_landmark`). Otherwise
+    A landmark not seen yet is initialised (:func:`augment_state`). Otherwise
     :math:`\\nu = z \\ominus h(\\mu_x, \\mu_k)`, :math:`Q = H_t\\Sigma H_t^\\top + R`,
     :math:`K = \\Sigma H_t^\\top Q^{-1}`, :math:`\\mu \\leftarrow \\mu + K\\nu` (heading wrapped),
     and :func:`joseph_update`; unless :math:`d^2 = \\nu^\\top Q^{-1}\\nu >` ``gate_chi2`` and not
@@ -331,7 +336,7 @@ def update(state: EKFSLAMState, z, k: int, R, *, gate_chi2: float | None = None,
 def update_unchecked(state: EKFSLAMState, z: np.ndarray, k: int, R: np.ndarray, gate_chi2, escape: bool) -> str:
     """:func:`update` without the checks of its arguments (the run checks the stream once)."""
     if not state.seen[k]:
-        add_landmark(state, z, k, R)
+        augment_state(state, z, k, R)
         return INITIALISED
     z_hat, Gx, H = measurement_jacobian(state, k)
     s, S = landmark_slice(k), state.sigma

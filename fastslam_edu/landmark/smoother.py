@@ -4,14 +4,15 @@ FastSLAM works through the log once, forwards, and represents the posterior over
 paths by M samples. Once the whole log is in, the *most probable* path and map
 under the same model can be computed directly — "full SLAM" as nonlinear least
 squares (Thrun, Burgard & Fox, *Probabilistic Robotics*, ch. 11, GraphSLAM;
-Dellaert & Kaess's square-root SAM). With keyframe poses
-:math:`x_0, \\dots, x_N` and landmarks :math:`m_1, \\dots, m_K` it minimises
+Dellaert & Kaess's square-root SAM). With :math:`T` keyframe poses
+:math:`x_0, \\dots, x_{T-1}` and :math:`N` landmarks :math:`\\mathbf l_1, \\dots, \\mathbf l_N` (here :math:`k`
+numbers the keyframes and :math:`j` the landmarks) it minimises
 
 .. math::
 
     \\tfrac12 \\|x_0 - \\bar x_0\\|^2_{P_0}
     + \\tfrac12 \\sum_k \\|(x_{k-1}^{-1} \\oplus x_k) \\ominus \\Delta_k\\|^2_{C_k}
-    + \\tfrac12 \\sum_i \\beta_i \\|z_i \\ominus h(x_{k_i}, m_{j_i})\\|^2_{R_i},
+    + \\tfrac12 \\sum_i \\beta_i \\|z_i \\ominus h(x_{k_i}, \\mathbf l_{j_i})\\|^2_{R_i},
     \\qquad \\|e\\|^2_C = e^\\top C^{-1} e,
 
 * the **prior** :math:`\\bar x_0`: the stream's initial pose, where every particle starts;
@@ -34,21 +35,19 @@ the path and map, each with a weak prior (``CALIBRATION_STD``): the odometry's c
 :math:`(k_v, k_\\omega, \\tau)` — scale of the speed and of the turn rate, and the lag of the robot behind its
 commands — and the angle :math:`\\delta` between its direction of travel and its heading
 (:class:`~.smoother_factors.OdometryModel`: :math:`\\Delta_k` becomes :math:`\\Delta_k(c)`), or a constant bias
-:math:`b` of every bearing (:func:`~.smoother_factors.measurement_residuals`). :math:`\\delta` and :math:`b` are
+:math:`b` of every bearing (:func:`~.smoother_factors.sighting_residuals`). :math:`\\delta` and :math:`b` are
 identifiable because the odometry ties the heading to the direction of travel; they turn the same data in opposite
 frames (the prior on the first pose pins the heading that the bearings refer to), so estimate one of them.
 
-What limits the absolute error on MR.CLAM is the frame, not the map's shape: the map and path are
-right up to a rigid motion to 3–13 cm (aligned), and that motion — a rotation of 1–5° about the start — is all that
+What limits the absolute error on MR.CLAM is the frame, not the map's shape: aligned by a rigid motion, the
+map and path are right to centimetres, and that motion — a rotation of a few degrees about the start — is all that
 ties the map to the prior on the first pose: the odometry. The Laplace approximation says so too: the landmarks'
-absolute σ is 0.3–0.7 m. What turns it is not one constant that could be estimated (``benchmarks/smoother_mrclam.py``,
-Dataset 6, against groundtruth): the camera's bearings agree with the groundtruth heading to 0.2° on four robots of
-five, the direction of travel with it to 1.2°, and estimating either angle changes the rotation by at most 1.4°, either
-way; odometry made exact for the first 30 s still leaves 2–3.5° on Dataset 6 robots 2, 3 and 5. The odometry's
-scale and lag, right on average, are wrong for the first turns (Dataset 6 robots 1–4 turned 100 % of their first
-command, −0.4 rad/s, against k_ω = 0.89–0.94 estimated over the log; robot 5 turned ~9° of two pulses
-commanded at 16°), which fix the frame: estimated, they turn robots 2 and 4 by 8–10°. What does help is the weight of
-the sightings against the odometry: ``BEST_ESTIMATE``.
+absolute σ is tens of centimetres. What turns it is not one constant that could be estimated: the camera's bearings
+and the direction of travel both agree with the groundtruth heading, estimating either angle changes the rotation
+little, and odometry made exact for the first seconds still leaves most of it. The odometry's scale and lag, right
+on average, are wrong for the first turns, which fix the frame: estimated, they turn some robots further. What does
+help is the weight of the sightings against the odometry: ``BEST_ESTIMATE``. The figures, robot by robot and
+against groundtruth: ``benchmarks/smoother_mrclam.py``, which writes ``benchmarks/results/smoother_mrclam.json``.
 
 Why a FastSLAM book has it: it is the yardstick. Its error against groundtruth
 is what the noise model and the data allow, with all of the log used at once;
@@ -76,12 +75,13 @@ from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult
 from fastslam_edu.core.measurement import landmark_from_measurement
 from fastslam_edu.core.params import Params
 from fastslam_edu.landmark.smoother_factors import (OdometryModel, dead_reckon_stream, keyframe_steps,
-                                                    measurement_residuals, odometry_factors, odometry_residuals,
+                                                    sighting_residuals, odometry_factors, odometry_residuals,
                                                     sighting_weights, whitening, wrap_pose_error)
 from fastslam_edu.landmark.smoother_laplace import ORDERING, laplace
 
-#: The old name of :func:`~.smoother_factors.dead_reckon_stream`, for ``smoother_association.py`` only (it imports
-#: it from here; being split in issue 30): drop it when that import names ``dead_reckon_stream``.
+#: The old name of :func:`~.smoother_factors.dead_reckon_stream`, for the smoother's association modules only
+#: (``smoother_association*.py`` import it from here; being split in issue 30): drop it when they name
+#: ``dead_reckon_stream``.
 dead_reckoning = dead_reckon_stream
 
 #: Standard deviation of the prior on the first keyframe (the filter starts every particle there exactly).
@@ -94,12 +94,12 @@ LANDMARK_ANCHOR_STD = 1e3
 #: order of the calibration vector :math:`c`: the scales of the speed and of the turn rate and the lag of the robot
 #: behind its commands (:class:`~.smoother_factors.OdometryModel`), the angle between the robot's direction of
 #: travel and its heading (``travel_offset``), and a constant offset of every bearing (``bearing_bias``,
-#: :func:`~.smoother_factors.measurement_residuals`).
+#: :func:`~.smoother_factors.sighting_residuals`).
 CALIBRATION_NAMES = ("k_v", "k_omega", "tau", "travel_offset", "bearing_bias")
 #: The odometry's calibration :math:`(k_v, k_\\omega, \\tau)`.
 ODOMETRY_CALIBRATION = ("k_v", "k_omega", "tau")
 #: Prior standard deviations of :math:`c` when estimated, about ``params.odometry_scale`` and zero lag and angles:
-#: weak (MR.CLAM's robots measure k ≈ 0.90–0.97, τ ≈ 0.15–0.25 s, angles ≈ 1° against groundtruth).
+#: weak against what MR.CLAM's robots measure (``benchmarks/smoother_mrclam.py``, its calibration variants).
 CALIBRATION_STD = (0.2, 0.2, 0.5, 0.1, 0.1)  # -, -, s, rad, rad
 
 
@@ -109,14 +109,14 @@ class SmootherResult:
 
     Attributes
     ----------
-    t : (N,) keyframe times [s]
-    steps : (N,) the stream steps of the keyframes
-    poses : (N, 3) keyframe poses ``(x, y, θ)`` [m, m, rad]
-    pose_std : (N, 3) their standard deviations from the Laplace approximation [m, m, rad]
-    landmarks : (K, 2) landmark positions [m] (NaN where never seen)
-    landmarks_cov : (K, 2, 2) their covariances from the Laplace approximation [m²]
-    observed : (K,) bool
-    landmark_subjects : (K,)
+    t : (T,) keyframe times [s]
+    steps : (T,) the stream steps of the keyframes
+    poses : (T, 3) keyframe poses ``(x, y, θ)`` [m, m, rad]
+    pose_std : (T, 3) their standard deviations from the Laplace approximation [m, m, rad]
+    landmarks : (N, 2) landmark positions [m] (NaN where never seen)
+    landmarks_cov : (N, 2, 2) their covariances from the Laplace approximation [m²]
+    observed : (N,) bool
+    landmark_subjects : (N,)
     iterations : Levenberg–Marquardt iterations, over all rounds
     rounds : how many times the problem was solved (1 Huber round, then gate rounds)
     cost : final ½ Σ ‖whitened residual‖² (sightings inside the gate)
@@ -159,8 +159,8 @@ class _Problem:
     n_poses: int
     x0: np.ndarray
     W0: np.ndarray  # (3, 3)
-    delta: np.ndarray  # (N-1, 3)
-    Wo: np.ndarray  # (N-1, 3, 3)
+    delta: np.ndarray  # (T-1, 3)
+    Wo: np.ndarray  # (T-1, 3, 3)
     z: np.ndarray  # (n, 2) the sightings with β > 0
     pose_of: np.ndarray  # (n,) keyframe of each sighting
     col_of: np.ndarray  # (n,) landmark column block of each sighting
@@ -190,7 +190,7 @@ class _Problem:
     def evaluate(self, v, active):
         """Whitened residuals and Jacobian (sparse) of the prior, odometry and the ``active`` sightings."""
         poses, lms = self.split(v)
-        N = self.n_poses
+        T = self.n_poses
         r0 = self.W0 @ wrap_pose_error(poses[0] - self.x0)
         c = self.calibration(v)
         delta = self.delta if self.odometry is None else self.odometry.deltas(c)
@@ -198,12 +198,12 @@ class _Problem:
         ro = np.einsum("fij,fj->fi", self.Wo, eo)
         Ja, Jb = self.Wo @ Ja, self.Wo @ Jb
         k, lm = self.pose_of[active], self.col_of[active]
-        em, Jx, Jm = measurement_residuals(poses[k], lms[lm], self.z[active], 0.0 if c is None else c[4])
+        em, Jx, Jm = sighting_residuals(poses[k], lms[lm], self.z[active], 0.0 if c is None else c[4])
         W = self.Wm[active]
         rm = np.einsum("nij,nj->ni", W, em)
         Jx, Jm = W @ Jx, W @ Jm
         # sparse layout: row blocks prior (3), odometry (3 each), sightings (2 each), landmark anchors (2 each)
-        F, n = N - 1, len(k)
+        F, n = T - 1, len(k)
         rows, cols, vals = [], [], []
 
         def block(row0, col0, J):  # J (B, p, q) at rows row0[b] + i, cols col0[b] + j
@@ -214,12 +214,12 @@ class _Problem:
 
         block(np.array([0]), np.array([0]), self.W0[None])
         block(3 + 3 * np.arange(F), 3 * np.arange(F), Ja)
-        block(3 + 3 * np.arange(F), 3 * np.arange(1, N), Jb)
+        block(3 + 3 * np.arange(F), 3 * np.arange(1, T), Jb)
         block(3 + 3 * F + 2 * np.arange(n), 3 * k, Jx)
-        block(3 + 3 * F + 2 * np.arange(n), 3 * N + 2 * lm, Jm)
+        block(3 + 3 * F + 2 * np.arange(n), 3 * T + 2 * lm, Jm)
         L = len(lms)  # the anchors, last
         ra = (lms - self.anchor) / LANDMARK_ANCHOR_STD
-        block(3 + 3 * F + 2 * n + 2 * np.arange(L), 3 * N + 2 * np.arange(L),
+        block(3 + 3 * F + 2 * n + 2 * np.arange(L), 3 * T + 2 * np.arange(L),
               np.broadcast_to(np.eye(2) / LANDMARK_ANCHOR_STD, (L, 2, 2)))
         rc = np.zeros(0)
         if c is not None:  # the calibration's columns (last) and its prior (last rows)
@@ -249,7 +249,7 @@ class _Problem:
         """Untempered :math:`d^2 = e^\\top R^{-1} e` of every sighting at ``v``."""
         poses, lms = self.split(v)
         c = self.calibration(v)
-        em = measurement_residuals(poses[self.pose_of], lms[self.col_of], self.z, 0.0 if c is None else c[4])[0]
+        em = sighting_residuals(poses[self.pose_of], lms[self.col_of], self.z, 0.0 if c is None else c[4])[0]
         w = np.einsum("nij,nj->ni", self.Wg, em)
         return np.sum(w * w, axis=1)
 
@@ -326,11 +326,11 @@ class SolverSettings(Params):
 #: The book's best estimate of path and map on MR.CLAM: every sighting counted in full (:math:`\\beta_i = 1`), nothing
 #: calibrated. Tempering (the filter's :math:`\\beta_i`, for sighting errors correlated over seconds) leaves the odometry,
 #: whose errors are correlated over minutes (scale, lag) and which alone ties the map to the first pose, too much
-#: weight: the solution turns with it. Counted in full, the path error is lower on all 7 robots with groundtruth and
-#: the landmark error on 6 (``benchmarks/smoother_mrclam.py``). Its Laplace covariances are
+#: weight: the solution turns with it. Counted in full, the path and landmark errors are lower on MR.CLAM's robots with
+#: groundtruth (``benchmarks/smoother_mrclam.py``, ``results/smoother_mrclam.json``). Its Laplace covariances are
 #: those of independent sightings, so overconfident: for σ and NEES, the default (tempered) settings.
-#: Estimating the odometry's scale and lag (``ODOMETRY_CALIBRATION``) turns Dataset 6 robots 2 and 4 by 8–10°: their
-#: first turns, which fix the frame, ran at 100 % of the command against 89–93 % on average over the log.
+#: Estimating the odometry's scale and lag (``ODOMETRY_CALIBRATION``) turns some robots further: their first turns,
+#: which fix the frame, ran nearer the command than the log's average (figures: ``results/smoother_mrclam.json``).
 BEST_ESTIMATE = SolverSettings(tempering=False)
 
 
@@ -362,10 +362,10 @@ def smooth(
         keyframes, its map). Default: dead reckoning, landmarks from their first sighting.
         Over a long log dead reckoning can be metres off, and least squares finds the
         optimum nearest its start: starting from the filter is the safe choice on real data
-        (MR.CLAM, ``benchmarks/smoother_mrclam.py``: from dead reckoning, Dataset 1 robot 5's
-        solution ends 0.3 m away from the one started from the filter, with 388 sightings gated
-        out against 147, and robot 3's gates out 685 of 6771 sightings against 20; on the six
-        robots with groundtruth both starts agree within 1 cm, but take 6–46 s against 0.2–3.5 s).
+        (MR.CLAM: from dead reckoning, some robots' solutions end decimetres away from the one
+        started from the filter, with many more sightings gated out; where both starts agree, dead
+        reckoning takes far longer. Figures: ``benchmarks/smoother_mrclam.py`` and
+        ``benchmarks/results/smoother_mrclam.json``.)
     x0 : (3,) initial pose; default ``stream.x0``.
     x0_std : (3,) standard deviations of the prior on the first pose [m, m, rad]. The default pins it
         (``PRIOR_STD``: a start from groundtruth, where every particle starts); give the start's real
@@ -387,7 +387,7 @@ def smooth(
         are the package's on both.
     """
     started = time.perf_counter()
-    minimise, laplace = _backend(backend, solver)
+    minimise, laplace = _solver_and_laplace(backend, solver)
     params = FastSLAMParams() if params is None else params
     x0 = stream.x0 if x0 is None else np.asarray(x0, dtype=float)
     if x0 is None:
@@ -424,7 +424,7 @@ def smooth(
     )
 
 
-def _backend(backend: str, solver: SolverSettings):
+def _solver_and_laplace(backend: str, solver: SolverSettings):
     """``(minimise, laplace)`` of ``backend``: the package's, or GTSAM's (:mod:`.smoother_gtsam`)."""
     if backend == "scipy":
         return levenberg_marquardt, laplace
@@ -436,17 +436,17 @@ def _backend(backend: str, solver: SolverSettings):
     from fastslam_edu.landmark import smoother_gtsam
 
     smoother_gtsam.require_gtsam()
-    return smoother_gtsam.levenberg_marquardt, smoother_gtsam.laplace
+    return smoother_gtsam.gtsam_levenberg_marquardt, smoother_gtsam.gtsam_laplace
 
 
-def _landmark_table(problem, seen, active, lms, cov_lm, K: int):
-    """The map in the stream's landmark order: ``(landmarks (K, 2), covariances (K, 2, 2), observed (K,))``;
+def _landmark_table(problem, seen, active, lms, cov_lm, n_landmarks: int):
+    """The map in the stream's landmark order: ``(landmarks (N, 2), covariances (N, 2, 2), observed (N,))``;
     NaN for a landmark never seen, or whose every sighting is beyond the gate."""
-    landmarks = np.full((K, 2), np.nan)
-    landmarks_cov = np.full((K, 2, 2), np.nan)
+    landmarks = np.full((n_landmarks, 2), np.nan)
+    landmarks_cov = np.full((n_landmarks, 2, 2), np.nan)
     kept = np.bincount(problem.col_of[active], minlength=len(seen)) > 0  # some sighting inside the gate
     landmarks[seen[kept]], landmarks_cov[seen[kept]] = lms[kept], cov_lm[kept]
-    observed = np.zeros(K, dtype=bool)
+    observed = np.zeros(n_landmarks, dtype=bool)
     observed[seen[kept]] = True
     return landmarks, landmarks_cov, observed
 
@@ -497,7 +497,7 @@ def starting_point(problem, path, keys, seen, initial: FastSLAMResult | None) ->
 def solve_with_gate(problem, v, gate: float | None, solver: SolverSettings, minimise=None):
     """Round 1: Huber at the gate's radius (unless ``solver.huber`` is False); then the gate itself, until the
     rejected set settles. Each round is minimised by ``minimise`` (default ``levenberg_marquardt``; or
-    :func:`fastslam_edu.landmark.smoother_gtsam.levenberg_marquardt`, the same signature).
+    :func:`fastslam_edu.landmark.smoother_gtsam.gtsam_levenberg_marquardt`, the same signature).
 
     Returns ``(v, active, iterations, rounds, cost)``.
     """

@@ -29,10 +29,10 @@ become factors of GTSAM (Dellaert & Kaess, *Factor Graphs for Robot Perception*,
   :math:`V(\\phi)^{-1} = \\tfrac{\\phi}{2}\\cot\\tfrac{\\phi}{2}\\, I - \\tfrac{\\phi}{2} S`, :math:`S` the 90° turn. So
   :math:`e_g = T(\\theta_{\\Delta_k})\\, e` plus a term of order :math:`\\phi\\, |e_{xy}|`: with the covariance
   :math:`T C_k T^\\top` the two costs agree where the odometry residuals vanish (dead reckoning) and differ by a relative
-  :math:`O(\\phi)` per factor elsewhere, :math:`\\phi` the heading residual (milliradians at the optimum). Measured,
-  without the Huber round, same gated set: on the simulator (60 s) the optima 0.05 mm apart, the costs 7e-6 relative,
-  the landmark σ 8e-5; on MR.CLAM Dataset 1 robot 2 1.4 mm, 0.5 mrad, 1.3e-4 and 3e-4
-  (``benchmarks/smoother_backends.py``): a different optimum, beyond the 1 mm and 1e-6 the backends must agree to.
+  :math:`O(\\phi)` per factor elsewhere, :math:`\\phi` the heading residual (milliradians at the optimum). Measured
+  without the Huber round on the same gated set (``benchmarks/smoother_backends.py``, which writes
+  ``benchmarks/results/smoother_backends.json``), that is a different optimum on MR.CLAM, beyond the 1 mm and 1e-6
+  the backends must agree to.
   So the odometry is a ``gtsam.CustomFactor`` with the package's residual and Jacobians
   (:func:`odometry_chain_factor`, covariance :math:`C_k` as it is); ``ODOMETRY_FACTOR = "between"`` gives the
   standard factor back.
@@ -49,8 +49,8 @@ prior and anchors included): the package's ``cost``, and GTSAM's ``NonlinearFact
 
 The gate is applied the same way on both backends: :func:`fastslam_edu.landmark.smoother.solve_with_gate` decides
 the active set from the package's :math:`d^2` at each round's solution, and only the minimisation of a round
-(:func:`levenberg_marquardt`) and the Laplace covariances (:func:`laplace`) are GTSAM's. The estimated calibration
-(``SolverSettings.calibrate``) has no GTSAM factor here and is refused.
+(:func:`gtsam_levenberg_marquardt`) and the Laplace covariances (:func:`gtsam_laplace`) are GTSAM's. The estimated
+calibration (``SolverSettings.calibrate``) has no GTSAM factor here and is refused.
 """
 
 from __future__ import annotations
@@ -160,11 +160,10 @@ def odometry_chain_factor(first: int, delta: np.ndarray, W: np.ndarray, slots=No
         \\frac{\\partial e_k}{\\partial \\delta_k} = \\mathrm{blockdiag}(R(\\theta_k - \\theta_{k-1}), 1),
 
     with :math:`r = x_{k-1}^{-1} \\oplus x_k`. Why chains and not one factor per odometry step: inside
-    GTSAM's optimizers a Python factor's call costs time in proportion to the number of variables (about 0.2 ms per
-    1000 variables here), so 5500 one-step factors took 7 min on a log that scipy solves in 5 s; chains of
-    :data:`CHAIN_LENGTH` steps make 1/16 as many calls. Each chain's factor joins its m + 1 poses in one clique:
-    (3m + 3)-dimensional dense blocks in the elimination (on a simulated log of 3349 keyframes, 11 iterations took 103 s
-    one step per factor, 15 s at m = 8, 6 s at m = 16 or 32, 11 s at m = 64).
+    GTSAM's optimizers a Python factor's call costs time in proportion to the number of variables, so one-step
+    factors take minutes on a log that scipy solves in seconds; chains of :data:`CHAIN_LENGTH` steps make that many
+    times fewer calls. Each chain's factor joins its m + 1 poses in one clique: (3m + 3)-dimensional dense blocks in
+    the elimination, so too long a chain is slow again (the times: ``benchmarks/smoother_backends.py``).
 
     ``slots`` (m + 1,): the poses' variable numbers when they are not ``first`` … ``first + m`` (one robot's
     keyframes among several robots', :func:`robots_factor_graph`).
@@ -223,7 +222,7 @@ def _pose_array(p) -> np.ndarray:
     return np.array([p.x(), p.y(), p.theta()])
 
 
-def levenberg_marquardt(problem, v, active, *, huber, max_iterations, tol):
+def gtsam_levenberg_marquardt(problem, v, active, *, huber, max_iterations, tol):
     """One round of the smoother solved by ``gtsam.LevenbergMarquardtOptimizer`` from ``v``: the same signature and
     returns as ``smoother.levenberg_marquardt``, ``(v, iterations, cost)``; ``cost`` is GTSAM's
     :math:`\\tfrac12 \\sum \\|W e\\|^2` (or :math:`\\sum \\rho` with ``huber``). It stops when the cost's relative
@@ -244,10 +243,10 @@ def levenberg_marquardt(problem, v, active, *, huber, max_iterations, tol):
     return from_values(problem, result, v), int(optimizer.iterations()), float(graph.error(result))
 
 
-def laplace(problem, v, active, with_poses=True):
+def gtsam_laplace(problem, v, active, with_poses=True):
     """The Laplace covariances from ``gtsam.Marginals`` at ``v`` (the same returns as ``smoother_laplace.laplace``):
-    pose standard deviations (N, 3) [m, m, rad] in the world frame (NaN unless ``with_poses``), the landmarks'
-    covariances (L, 2, 2) [m²], and an empty (0, 0) calibration block.
+    pose standard deviations (T, 3) [m, m, rad] in the world frame (NaN unless ``with_poses``), the landmarks'
+    covariances (N, 2, 2) [m²], and an empty (0, 0) calibration block.
 
     GTSAM gives a pose's covariance :math:`\\Sigma_g` in its own frame (a perturbation :math:`x \\exp(\\delta)`);
     in the world frame it is :math:`T(\\theta)^\\top \\Sigma_g T(\\theta)` (:func:`rotated_covariance` by
@@ -334,7 +333,7 @@ def robot_sighting_factor(ra, rb, da, db, z, W, huber: float | None = None):
     """
     gtsam = require_gtsam()
     from fastslam_edu.landmark.multi_robot import compose, compose_jacobian
-    from fastslam_edu.landmark.smoother_factors import measurement_residuals
+    from fastslam_edu.landmark.smoother_factors import sighting_residuals
 
     slots, index = np.unique(np.r_[ra, rb], return_inverse=True)
     n = len(ra)
@@ -345,7 +344,7 @@ def robot_sighting_factor(ra, rb, da, db, z, W, huber: float | None = None):
     def error(factor, values, jacobians):
         x = np.array([_pose_array(values.atPose2(key)) for key in keys])
         xa, xb = x[ia], x[ib]
-        e, Jx, Jm = measurement_residuals(compose(xa, da), compose(xb, db)[:, :2], z)
+        e, Jx, Jm = sighting_residuals(compose(xa, da), compose(xb, db)[:, :2], z)
         r = np.einsum("nij,nj->ni", W, e)
         if jacobians is None and huber is None:
             return r.ravel()
@@ -384,6 +383,11 @@ def _huber_rows(r, Ja, Jb, c: float):
 
 
 def landmark_covariances(problem, v, active) -> np.ndarray:
-    """The landmarks' Laplace covariances (L, 2, 2) [m²] from ``gtsam.Marginals`` at ``v`` (:func:`laplace`, without
-    the poses'): GTSAM's counterpart of :func:`fastslam_edu.landmark.multi_robot.laplace_landmarks`."""
-    return laplace(problem, v, active, with_poses=False)[1]
+    """The landmarks' Laplace covariances (N, 2, 2) [m²] from ``gtsam.Marginals`` at ``v`` (:func:`gtsam_laplace`,
+    without the poses'): GTSAM's counterpart of :func:`fastslam_edu.landmark.multi_robot.laplace_landmarks`."""
+    return gtsam_laplace(problem, v, active, with_poses=False)[1]
+
+
+#: The old name of :func:`gtsam_levenberg_marquardt` (the package's own is ``smoother.levenberg_marquardt``), for
+#: ``landmark/multi_robot.py``; drop it when that module names the new one.
+levenberg_marquardt = gtsam_levenberg_marquardt

@@ -5,7 +5,7 @@ with covariance :math:`(J^\\top J)^{-1}` (:math:`J` the whitened Jacobian of all
 the blocks of it that are reported — each pose's standard deviations, each landmark's 2×2 covariance, the
 calibration's covariance — without inverting :math:`J^\\top J`: the poses are eliminated first (a Schur complement),
 and the diagonal blocks of the poses' block-tridiagonal part come from
-:func:`block_tridiagonal_inverse_diagonal`. (:func:`fastslam_edu.landmark.smoother_gtsam.laplace` is GTSAM's, with
+:func:`block_tridiagonal_inverse_diagonal`. (:func:`fastslam_edu.landmark.smoother_gtsam.gtsam_laplace` is GTSAM's, with
 the same returns.)
 """
 
@@ -24,8 +24,8 @@ ORDERING = "NATURAL"
 
 
 def pose_blocks(P, n_poses: int):
-    """The diagonal blocks ``P_kk`` (N, 3, 3) and the blocks above them ``P_k,k+1`` (N-1, 3, 3) of the
-    block-tridiagonal sparse matrix ``P`` (3N × 3N)."""
+    """The diagonal blocks ``P_kk`` (T, 3, 3) and the blocks above them ``P_k,k+1`` (T-1, 3, 3) of the
+    block-tridiagonal sparse matrix ``P`` (3T × 3T), ``T = n_poses`` keyframes."""
     P = P.tocoo()
     P.sum_duplicates()
     k, i, j, data = P.row // 3, P.row % 3, P.col % 3, P.data
@@ -40,30 +40,30 @@ def pose_blocks(P, n_poses: int):
 def block_tridiagonal_inverse_diagonal(D: np.ndarray, C: np.ndarray) -> np.ndarray:
     """The diagonal blocks of :math:`P^{-1}` for a symmetric positive definite block-tridiagonal :math:`P`.
 
-    ``D`` (N, d, d) are the diagonal blocks :math:`P_{kk}`, ``C`` (N-1, d, d) the blocks above them,
+    ``D`` (T, d, d) are the diagonal blocks :math:`P_{kk}`, ``C`` (T-1, d, d) the blocks above them,
     :math:`C_k = P_{k,k+1}`. Block elimination forwards, then a backward pass:
 
     .. math::
 
         \\Pi_0 = D_0, \\quad \\Pi_k = D_k - C_{k-1}^\\top \\Pi_{k-1}^{-1} C_{k-1}; \\qquad
-        \\Sigma_{N-1} = \\Pi_{N-1}^{-1}, \\quad
+        \\Sigma_{T-1} = \\Pi_{T-1}^{-1}, \\quad
         \\Sigma_k = \\Pi_k^{-1} + G_k \\Sigma_{k+1} G_k^\\top, \\; G_k = \\Pi_k^{-1} C_k.
 
     Read as a Gaussian with information matrix :math:`P`: once blocks 0 … k−1 are eliminated, block k
     given block k+1 has covariance :math:`\\Pi_k^{-1}` and mean :math:`-G_k x_{k+1}` (plus a constant),
     and the backward pass is the law of total covariance — the Rauch–Tung–Striebel smoother's.
-    :math:`O(N d^3)`, against :math:`N d` sparse solves for the same blocks. Returns (N, d, d).
+    :math:`O(T d^3)`, against :math:`T d` sparse solves for the same blocks. Returns (T, d, d).
     """
-    N = len(D)
+    T = len(D)
     Pi = np.empty_like(D)
     Pi[0] = D[0]
-    for k in range(1, N):
+    for k in range(1, T):
         # a solve, not Π⁻¹ times C: the subtraction cancels digits, and an explicit inverse loses more of them
         # (pose σ 6e-8 off in relative terms on a 2850-keyframe log, against 1e-10 with the solve)
         Pi[k] = D[k] - C[k - 1].T @ np.linalg.solve(Pi[k - 1], C[k - 1])
     Sigma = np.empty_like(D)
     Sigma[-1] = np.linalg.inv(Pi[-1])
-    for k in range(N - 2, -1, -1):
+    for k in range(T - 2, -1, -1):
         G = np.linalg.solve(Pi[k], C[k])
         Sigma[k] = np.linalg.inv(Pi[k]) + G @ Sigma[k + 1] @ G.T
     return Sigma
@@ -73,13 +73,13 @@ def laplace(problem, v, active, with_poses=True):
     """Standard deviations of the poses, covariances of the landmarks and of the odometry calibration (when it
     is estimated, as three more landmark-like variables after the landmarks): blocks of :math:`(J^\\top J)^{-1}`.
     ``problem`` is the smoother's (:func:`~.smoother.build_problem`), ``v`` its solution, ``active`` (n,) the
-    sightings inside the gate. Returns ``(pose_std (N, 3) [m, m, rad], landmark covariances (K, 2, 2) [m²],
+    sightings inside the gate. Returns ``(pose_std (T, 3) [m, m, rad], landmark covariances (N, 2, 2) [m²],
     calibration covariance)``; ``pose_std`` NaN unless ``with_poses``.
 
     With the poses first, :math:`J^\\top J = \\begin{pmatrix} P & B \\\\ B^\\top & M \\end{pmatrix}`:
-    :math:`P` (3N × 3N) is block-tridiagonal (the prior and the odometry factors link consecutive
-    keyframes only), :math:`B` links the poses to the landmarks they saw, :math:`M` (2K × 2K) holds
-    the landmarks' own blocks. Eliminating the poses (the Schur complement),
+    :math:`P` (3T × 3T, :math:`T` keyframes) is block-tridiagonal (the prior and the odometry factors link consecutive
+    keyframes only), :math:`B` links the poses to the landmarks they saw, :math:`M` (2N × 2N, :math:`N` landmarks)
+    holds the landmarks' own blocks. Eliminating the poses (the Schur complement),
 
     .. math::
 
@@ -87,21 +87,22 @@ def laplace(problem, v, active, with_poses=True):
         \\Sigma_{pp} = P^{-1} + X \\Sigma_{mm} X^\\top, \\qquad X = P^{-1} B,
 
     with the diagonal blocks of :math:`P^{-1}` from :func:`block_tridiagonal_inverse_diagonal`.
-    (Not by solving :math:`J^\\top J` for thousands of unit vectors: that took 10–20 s on a log of
-    3000 keyframes, and many times longer on a machine whose other core was busy, where each of the
-    sparse solver's many small multi-threaded BLAS calls waits for a thread that cannot run.)
+    (Not by solving :math:`J^\\top J` for thousands of unit vectors: far slower on a log of thousands of
+    keyframes, and slower still on a machine whose other core is busy, where each of the sparse solver's many
+    small multi-threaded BLAS calls waits for a thread that cannot run.)
     """
     _, J, _ = problem.evaluate(v, active)
     A = (J.T @ J).tocsc()
-    N, p = problem.n_poses, 3 * problem.n_poses
+    T, p = problem.n_poses, 3 * problem.n_poses
     P, B, M = A[:p, :p], A[:p, p:], A[p:, p:].toarray()
-    X = splu(P, permc_spec=ORDERING, diag_pivot_thresh=0.0).solve(B.toarray())  # (3N, 2K), P banded: no fill
+    X = splu(P, permc_spec=ORDERING, diag_pivot_thresh=0.0).solve(B.toarray())  # (3T, 2N), P banded: no fill
     cov = np.linalg.inv(M - B.T @ X)
-    K = (len(cov) - problem.n_extra) // 2
-    cov_lm = cov[:2 * K, :2 * K].reshape(K, 2, K, 2)[np.arange(K), :, np.arange(K), :]  # the 2×2 blocks on the diagonal
-    cov_extra = cov[2 * K:, 2 * K:]  # the odometry calibration's, if estimated
+    N = (len(cov) - problem.n_extra) // 2
+    # the 2×2 blocks on the diagonal
+    cov_lm = cov[:2 * N, :2 * N].reshape(N, 2, N, 2)[np.arange(N), :, np.arange(N), :]
+    cov_extra = cov[2 * N:, 2 * N:]  # the odometry calibration's, if estimated
     if not with_poses:
-        return np.full((N, 3), np.nan), cov_lm, cov_extra
-    var = np.diagonal(block_tridiagonal_inverse_diagonal(*pose_blocks(P, N)), axis1=1, axis2=2).ravel()
+        return np.full((T, 3), np.nan), cov_lm, cov_extra
+    var = np.diagonal(block_tridiagonal_inverse_diagonal(*pose_blocks(P, T)), axis1=1, axis2=2).ravel()
     var = var + np.einsum("ij,jk,ik->i", X, cov, X)  # the diagonal of X Σ_mm Xᵀ
-    return np.sqrt(np.maximum(var, 0.0)).reshape(N, 3), cov_lm, cov_extra
+    return np.sqrt(np.maximum(var, 0.0)).reshape(T, 3), cov_lm, cov_extra

@@ -379,8 +379,8 @@ def _node_ids(tree: LandmarkTree, into: set[int]) -> int:
 def count_nodes(*trees: LandmarkTree) -> int:
     """Number of *distinct* nodes (internal nodes and leaves) in the given trees, by identity.
 
-    For one tree holding every key of ``N = 2^d`` this is :math:`2K - 1`; for
-    :math:`M` trees that share subtrees it is far less than :math:`M(2K-1)`.
+    For one tree holding every key of ``N = 2^d`` this is :math:`2N - 1`; for
+    :math:`M` trees that share subtrees it is far less than :math:`M(2N-1)`.
     """
     seen: set[int] = set()
     return sum(_node_ids(t, seen) for t in trees)

@@ -38,7 +38,7 @@ __all__ = ["OUTLIER_THRESHOLD", "MeasurementNoise", "measurement_residuals", "re
 OUTLIER_THRESHOLD = 0.5
 
 
-def _landmark_table(landmarks, subjects) -> pd.DataFrame:
+def _landmarks_by_subject(landmarks, subjects) -> pd.DataFrame:
     """Landmarks as a DataFrame indexed by subject with columns ``x, y``."""
     if isinstance(landmarks, Dataset):
         landmarks = landmarks.landmarks
@@ -50,9 +50,9 @@ def _landmark_table(landmarks, subjects) -> pd.DataFrame:
     else:
         pos = np.asarray(landmarks, dtype=float)
         if pos.ndim != 2 or pos.shape[1] != 2:
-            raise ValueError(f"landmarks must be a DataFrame (index subject, columns x, y) or an array (K, 2), got shape {pos.shape}")
+            raise ValueError(f"landmarks must be a DataFrame (index subject, columns x, y) or an array (N, 2), got shape {pos.shape}")
         if subjects is None:
-            raise ValueError("landmarks given as an array (K, 2): pass subjects (K,), the subject number of each row")
+            raise ValueError("landmarks given as an array (N, 2): pass subjects (N,), the subject number of each row")
         subj = np.asarray(subjects)
         if subj.shape != (pos.shape[0],):
             raise ValueError(f"subjects must have shape ({pos.shape[0]},), got {subj.shape}")
@@ -80,10 +80,10 @@ def measurement_residuals(log: RobotLog, landmarks, subjects=None, *, max_gap: f
     ----------
     log : RobotLog
         With groundtruth.
-    landmarks : Dataset, DataFrame or array_like (K, 2)
+    landmarks : Dataset, DataFrame or array_like (N, 2)
         Surveyed landmarks: a Dataset, ``Dataset.landmarks`` (index
         ``subject``, columns ``x, y``), or an array of positions with ``subjects``.
-    subjects : array_like of int, shape (K,), optional
+    subjects : array_like of int, shape (N,), optional
         Subject numbers of the rows of an array ``landmarks``.
     max_gap : float
         Measurements inside a groundtruth gap longer than this [s] are skipped.
@@ -108,7 +108,7 @@ def measurement_residuals(log: RobotLog, landmarks, subjects=None, *, max_gap: f
     """
     gt = usable_groundtruth(log, glitch_threshold)
     max_gap = checked_max_gap(max_gap)
-    table = _landmark_table(landmarks, subjects)
+    table = _landmarks_by_subject(landmarks, subjects)
     values, subject = _checked_measurements(log, table)
     t_gt = gt["time"].to_numpy()
     t = values[:, 0]
@@ -226,7 +226,7 @@ def landmark_check(residuals, landmarks, subjects=None, max_offset: float = OUTL
         ``median_bearing_residual`` [rad], ``suspect`` (bool).
     """
     frame = _residual_frame(residuals)
-    table = _landmark_table(landmarks, subjects)
+    table = _landmarks_by_subject(landmarks, subjects)
     g = frame.groupby("subject")
     seen = g[["x_seen", "y_seen"]].median()
     out = table.loc[seen.index].copy()
