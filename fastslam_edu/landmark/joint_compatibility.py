@@ -168,11 +168,11 @@ def joint_loglik(total, n_assigned, Pc):
     a10, a11, a12 = _pc_g(Pc, total, 1, 0), 1.0 + _pc_g(Pc, total, 1, 1), _pc_g(Pc, total, 1, 2)
     a20, a21, a22 = _pc_g(Pc, total, 2, 0), _pc_g(Pc, total, 2, 1), 1.0 + _pc_g(Pc, total, 2, 2)
     c0, c1, c2 = _pc_b(Pc, total, 0), _pc_b(Pc, total, 1), _pc_b(Pc, total, 2)
-    det_a = det3_of(a00, a01, a02, a10, a11, a12, a20, a21, a22)
+    det_a = det3_of((a00, a01, a02), (a10, a11, a12), (a20, a21, a22))
     # A⁻¹ P_c b by Cramer's rule: unknown j is the determinant of A with column j replaced by c, over det A
-    x0 = det3_of(c0, a01, a02, c1, a11, a12, c2, a21, a22) / det_a
-    x1 = det3_of(a00, c0, a02, a10, c1, a12, a20, c2, a22) / det_a
-    x2 = det3_of(a00, a01, c0, a10, a11, c1, a20, a21, c2) / det_a
+    x0 = det3_of((c0, a01, a02), (c1, a11, a12), (c2, a21, a22)) / det_a
+    x1 = det3_of((a00, c0, a02), (a10, c1, a12), (a20, c2, a22)) / det_a
+    x2 = det3_of((a00, a01, c0), (a10, a11, c1), (a20, a21, c2)) / det_a
     quad = total[PAIR_QUAD] - (total[PAIR_B] * x0 + total[PAIR_B + 1] * x1 + total[PAIR_B + 2] * x2)
     return -0.5 * quad - n_assigned * LOG_2PI - 0.5 * (total[PAIR_LOG_DET] + math.log(det_a))
 
@@ -190,9 +190,11 @@ def _pc_b(Pc, total, u):
 
 
 @njit(cache=True, inline="always")
-def det3_of(a00, a01, a02, a10, a11, a12, a20, a21, a22):
-    """The determinant of a 3×3 matrix given by its entries, row by row (cofactors along the first row)."""
-    return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
+def det3_of(r0, r1, r2):
+    """The determinant of a 3×3 matrix given by its rows ``r0``, ``r1``, ``r2`` (tuples of 3 numbers, no array),
+    by cofactors along the first row."""
+    return (r0[0] * (r1[1] * r2[2] - r1[2] * r2[1]) - r0[1] * (r1[0] * r2[2] - r1[2] * r2[0])
+            + r0[2] * (r1[0] * r2[1] - r1[1] * r2[0]))
 
 
 __all__ = ["JOINT_MAX_HYPOTHESES", "PAIR_QUAD", "PAIR_B", "PAIR_G", "PAIR_LOG_DET", "N_PAIR_SLOTS", "joint_slots",

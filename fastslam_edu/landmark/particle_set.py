@@ -146,7 +146,7 @@ def draw_normals(rng: np.random.Generator, m: int, n_steps: int, k: int) -> np.n
     return out
 
 
-def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.Generator, w,
+def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.Generator, w, *,
                       n_record: int | None = None):
     """Step 1 as the filter runs it: line 4 of table 13.1 for each particle, recording the estimates.
 
