@@ -12,7 +12,7 @@ from fastslam_edu.evaluation.consistency import (
     align_pose,
     nees,
     nees_interval,
-    pose_covariance,
+    pose_mean_and_covariance,
     pose_error,
     simulator_params,
 )
@@ -74,7 +74,7 @@ def test_pose_covariance_is_the_weighted_covariance():
     poses = rng.normal(size=(200, 3)) * [0.3, 0.2, 0.1] + [1.0, -2.0, 0.5]
     w = rng.uniform(size=200)
     w /= w.sum()
-    mean, cov = pose_covariance(poses, w)
+    mean, cov = pose_mean_and_covariance(poses, w)
     np.testing.assert_allclose(mean, combined_pose(poses, w))
     # numpy's weighted covariance about the weighted mean (the circular mean differs from it by ~1e-4 rad here)
     np.testing.assert_allclose(cov, np.cov(poses.T, aweights=w, bias=True), atol=1e-6)
@@ -84,11 +84,11 @@ def test_pose_covariance_of_a_cloud_across_pi_is_small():
     rng = np.random.default_rng(3)
     theta = np.pi + 0.05 * rng.standard_normal(500)  # headings on both sides of +-pi once wrapped
     poses = np.column_stack([np.zeros(500), np.zeros(500), np.angle(np.exp(1j * theta))])
-    mean, cov = pose_covariance(poses, np.full(500, 1 / 500))
+    mean, cov = pose_mean_and_covariance(poses, np.full(500, 1 / 500))
     assert abs(abs(mean[2]) - np.pi) < 0.01
     assert abs(np.sqrt(cov[2, 2]) - 0.05) < 0.005
     with pytest.raises(ValueError, match="sum to 1"):
-        pose_covariance(poses, np.ones(500))
+        pose_mean_and_covariance(poses, np.ones(500))
 
 
 def test_pose_error_wraps_the_heading():
@@ -207,7 +207,7 @@ def test_nees_interval_rejects_zero_runs_and_degenerate_confidence():
 def test_pose_covariance_rejects_negative_weights_summing_to_one():
     """Reference: the documented contract — weights must be non-negative, not only sum to 1."""
     with pytest.raises(ValueError, match="non-negative"):
-        pose_covariance(np.zeros((2, 3)), np.array([1.5, -0.5]))
+        pose_mean_and_covariance(np.zeros((2, 3)), np.array([1.5, -0.5]))
 
 
 def test_pose_error_rejects_poses_without_heading():

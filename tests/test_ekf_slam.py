@@ -33,7 +33,7 @@ from fastslam_edu.evaluation.consistency import nees, simulator_params
 from fastslam_edu.landmark.ekf_slam import EKFSLAMParams, run_ekf_slam
 from fastslam_edu.landmark.ekf_slam_association import (NEW, SET_ASIDE, add_new_landmark, associate,
                                                         association_distances)
-from fastslam_edu.landmark.ekf_slam_steps import (EKFSLAMState, add_landmark, correlation_matrix,
+from fastslam_edu.landmark.ekf_slam_steps import (EKFSLAMState, augment_state, correlation_matrix,
                                                   full_measurement_jacobian, jacobian_inverse_pose, landmark_slice,
                                                   measurement_jacobian, motion_jacobian, motion_noise_covariance,
                                                   predict, predict_segment, update)
@@ -211,7 +211,7 @@ def test_new_landmark_covariance_is_the_linearised_augmentation():
     big = np.zeros((n + 2, n + 2))
     big[:n, :n], big[n:, n:] = state.sigma, R
     expected = J @ big @ J.T
-    add_landmark(state, z, k, R)
+    augment_state(state, z, k, R)
     np.testing.assert_allclose(state.sigma, expected, atol=1e-8)
     np.testing.assert_allclose(state.mu[landmark_slice(k)], landmark_from_measurement(state.mu[:3], z))
     assert state.seen[k]

@@ -13,7 +13,7 @@ from fastslam_edu.grid.occupancy import OccupancyGrid, map_correlation, scan_end
 from fastslam_edu.grid.rays import bresenham, ray_cells_batch
 from grid_loop import run_grid_slam_loop  # benchmarks/grid_loop.py, the loop reference
 from fastslam_edu.grid.gridslam import GridSLAMParams, ancestral_path, run_grid_slam
-from fastslam_edu.grid.motion import increment_noise_std, sample_motion
+from fastslam_edu.grid.motion import increment_noise_std, sample_odometry_motion
 from fastslam_edu.grid.scan_matching import correlation, correlation_kernel, endpoint_cells, hit_field, scan_match
 from fastslam_edu.evaluation.relations import reference_errors
 from fastslam_edu.datasets.sim_laser import simulate_laser_world
@@ -44,13 +44,13 @@ def test_increment_noise_std_closed_form():
 def test_sample_motion_uses_m_by_3_normals_and_has_the_stated_spread():
     p = GridSLAMParams()
     u = np.array([1.0, 0.0, 0.2])
-    out = sample_motion(np.zeros((4, 3)), u, p, np.random.default_rng(7))
+    out = sample_odometry_motion(np.zeros((4, 3)), u, p, np.random.default_rng(7))
     eps = np.random.default_rng(7).standard_normal((4, 3)) * increment_noise_std(u, p)
     np.testing.assert_allclose(out, u + eps, atol=1e-12)  # from the origin, x ⊕ (u + ε) = u + ε
     # statistics: from a rotated start, the increment seen in the start's frame is u + ε
     m = 20000
     x0 = np.array([2.0, -1.0, 0.8])
-    xs = sample_motion(np.tile(x0, (m, 1)), u, p, np.random.default_rng(8))
+    xs = sample_odometry_motion(np.tile(x0, (m, 1)), u, p, np.random.default_rng(8))
     c, s = math.cos(0.8), math.sin(0.8)
     d = xs[:, :2] - x0[:2]
     local = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], xs[:, 2] - 0.8])

@@ -19,14 +19,11 @@ from fastslam_edu.datasets.events import event_stream, groundtruth_at
 from fastslam_edu.datasets.mrclam import read_dataset, robot_sightings, write_dataset
 from fastslam_edu.datasets.sim import simulate_dataset
 from fastslam_edu.landmark.fastslam import FastSLAMParams
-from fastslam_edu.landmark.multi_robot import (
-    check_robot_numbers,
-    compose,
-    compose_jacobian,
-    smooth_robots,
-)
+from fastslam_edu.landmark.multi_robot import check_robot_numbers, smooth_robots
+from fastslam_edu.landmark.robot_sightings import compose_jacobian
+from fastslam_edu.landmark.robot_sightings import compose_unwrapped as compose
 from fastslam_edu.landmark.smoother import BEST_ESTIMATE, smooth
-from fastslam_edu.landmark.smoother_factors import measurement_residuals
+from fastslam_edu.landmark.smoother_factors import sighting_residuals
 
 NOISE = MotionNoise(sigma_v=0.01, sigma_omega=0.02)
 
@@ -59,9 +56,9 @@ def test_robot_sighting_jacobians_match_finite_differences():
         z = np.array([2.0, 0.3])
 
         def e(xa, xb):
-            return measurement_residuals(compose(xa[None], da[None]), compose(xb[None], db[None])[:, :2], z[None])[0][0]
+            return sighting_residuals(compose(xa[None], da[None]), compose(xb[None], db[None])[:, :2], z[None])[0][0]
 
-        _, Jx, Jm = measurement_residuals(compose(xa[None], da[None]), compose(xb[None], db[None])[:, :2], z[None])
+        _, Jx, Jm = sighting_residuals(compose(xa[None], da[None]), compose(xb[None], db[None])[:, :2], z[None])
         Ja = Jx[0] @ compose_jacobian(xa[None], da[None])[0]
         Jb = Jm[0] @ compose_jacobian(xb[None], db[None])[0][:2]
         np.testing.assert_allclose(Ja, _numeric_jacobian(lambda x: e(x, xb), xa), atol=1e-6)
@@ -70,7 +67,7 @@ def test_robot_sighting_jacobians_match_finite_differences():
 
 def test_keyframe_offsets_carry_the_keyframe_to_the_sighting_time():
     """x̂(t) = x̂_k ⊕ δ: the dead-reckoned pose at any time inside the log, from the keyframe at or before it."""
-    from fastslam_edu.landmark.multi_robot import keyframe_offsets
+    from fastslam_edu.landmark.robot_sightings import keyframe_offsets
     from fastslam_edu.landmark.smoother_factors import dead_reckon_stream, keyframe_steps
 
     data, logs, streams, _ = _team(2, n_robots=1, duration=30.0)
@@ -86,7 +83,7 @@ def test_keyframe_offsets_carry_the_keyframe_to_the_sighting_time():
 def test_robot_sightings_are_tempered_per_robot_seen():
     """β = min(1, Δt/τ) with Δt since the observer last saw the same robot (a robot seen is a landmark of its
     observer); other observers and other robots do not count."""
-    from fastslam_edu.landmark.multi_robot import robot_sighting_weights
+    from fastslam_edu.landmark.robot_sightings import robot_sighting_weights
 
     observer = np.array([1, 1, 1, 2, 1])
     seen = np.array([2, 2, 3, 1, 2])

@@ -23,9 +23,6 @@ MAX_FUNCTION_LINES = 60
 #: (test_every_known_exception_still_exceeds says when).
 KNOWN_EXCEPTIONS: set[str] = {
     "landmark/smoother_association.py",  # being split in issue 30
-    "app/cli.py:build_parser",  # being split in issue 30
-    "app/cli.py:cmd_run",  # being split in issue 30
-    "landmark/multi_robot.py:smooth_robots",  # being split in issue 30
 }
 
 

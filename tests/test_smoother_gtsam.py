@@ -281,8 +281,8 @@ def test_robot_sighting_factor_matches_the_package_and_finite_differences(huber)
     whitened residuals (the Huber loss's ½‖g r‖² = ρ per sighting), its Jacobians central differences of that error
     under GTSAM's retraction x exp(δ)."""
     gtsam = pytest.importorskip("gtsam")
-    from fastslam_edu.landmark.multi_robot import compose
-    from fastslam_edu.landmark.smoother_factors import measurement_residuals, whitening
+    from fastslam_edu.landmark.robot_sightings import compose_unwrapped as compose
+    from fastslam_edu.landmark.smoother_factors import sighting_residuals, whitening
 
     rng = np.random.default_rng(5)
     ra, rb = np.array([0, 2, 0]), np.array([1, 3, 3])
@@ -300,7 +300,7 @@ def test_robot_sighting_factor_matches_the_package_and_finite_differences(huber)
         return values
 
     poses = [gtsam.Pose2(*p) for p in x]
-    e = measurement_residuals(compose(x[ra], da), compose(x[rb], db)[:, :2], z)[0]
+    e = sighting_residuals(compose(x[ra], da), compose(x[rb], db)[:, :2], z)[0]
     r = np.einsum("nij,nj->ni", W, e)
     s = np.linalg.norm(r, axis=1)
     if huber is None:

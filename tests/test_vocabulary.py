@@ -26,12 +26,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "fastslam_edu"
 #: modules that hold them are being split in issue 30).
 KNOWN_DUPLICATES: set[str] = {
     "main",  # python -m entry points (``python -m fastslam_edu.datasets.fetch`` ...): the conventional name, kept
-    "compose",  # core.se2's is the SE(2) ⊕; landmark/multi_robot.py's an unwrapped batched copy (its owner, issue 30)
     "propagate",  # core.motion's is the deterministic g(x, u); landmark/particle_set.py's samples step 1 (its owner)
     "initialise_landmark",  # core/ekf.py (teaching) and landmark/fastslam_step.py (compiled): the filter engine's owner
     "drift_covariance",  # the filter's and the smoother's association (smoother_association*.py, being split)
     "existence_log_odds",  # the filter's and the smoother's association (smoother_association*.py, being split)
-    "_positive_int",  # two argument parsers of the app, app/cli.py and app/sweep.py (its owner, issue 30)
 }
 
 #: Modules whose docstrings still give landmark shapes with K (being edited by others in issue 30).

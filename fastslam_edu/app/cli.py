@@ -13,17 +13,8 @@ import sys
 from pathlib import Path
 
 
+from fastslam_edu.app.sweep import positive_int
 from fastslam_edu.landmark.fastslam import MODES, PROPOSALS, FastSLAMParams
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
 
 
 def _robot_list(text: str) -> tuple:
@@ -60,11 +51,22 @@ class _OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line: ``run`` (landmark SLAM on MR.CLAM), ``gridslam`` (a laser log) and ``data``."""
+    from fastslam_edu.datasets.registry import add_arguments as add_data_arguments
+
     parser = _OneLineParser(prog="fastslam-edu", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
-    run = sub.add_parser("run", help="FastSLAM 1.0 (or EKF-SLAM) on one robot of a MR.CLAM dataset")
+    _add_run_options(sub.add_parser("run", help="FastSLAM 1.0 (or EKF-SLAM) on one robot of a MR.CLAM dataset"))
+    _add_gridslam_options(sub.add_parser("gridslam", help="particle-filter grid SLAM on a 2D laser log (Intel, FR079)"))
+    add_data_arguments(sub.add_parser("data", help="fetch (or --check) the registered datasets into $FASTSLAM_EDU_DATA, "
+                                                   "one line per dataset"))
+    return parser
+
+
+def _add_run_options(run: argparse.ArgumentParser) -> None:
+    """The options of ``fastslam-edu run``."""
     run.add_argument("--data", required=True, type=Path, help="a MR.CLAM dataset folder (MRCLAM_DatasetN)")
-    run.add_argument("--robot", type=_positive_int, help="robot subject number (1-5); or --robots")
+    run.add_argument("--robot", type=positive_int, help="robot subject number (1-5); or --robots")
     run.add_argument("--robots", type=_robot_list, metavar="N,N,...",
                      help="several robots of the dataset, e.g. 1,2,3,4,5: with --smooth, one least-squares problem "
                           "over all their paths and one shared map, with their sightings of each other "
@@ -72,7 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--filter", choices=FILTERS, default="fastslam",
                      help="fastslam: FastSLAM 1.0 (default); ekf: EKF-SLAM, one Gaussian over pose and map, with the "
                           "same noise model and gate (fastslam_edu.landmark.ekf_slam; deterministic)")
-    run.add_argument("--particles", type=_positive_int, default=None,
+    run.add_argument("--particles", type=positive_int, default=None,
                      help=f"number of particles M (default {FastSLAMParams().n_particles}; FastSLAM only)")
     run.add_argument("--seed", type=int, default=0, help="random seed (same seed, same numbers)")
     run.add_argument("--rate", choices=("full", "1hz"), default="full", help="full-rate events or the write-up's 1 Hz cleaning")
@@ -109,30 +111,26 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--plot", type=Path, help="write a figure (map, path, errors) to this PNG")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    gs = sub.add_parser("gridslam", help="particle-filter grid SLAM on a 2D laser log (Intel, FR079)")
+
+def _add_gridslam_options(gs: argparse.ArgumentParser) -> None:
+    """The options of ``fastslam-edu gridslam``."""
     gs.add_argument("--scans", required=True, type=Path, help="laser log: CARMEN (.log/.gz), Intel JSON (.json/.json.gz) or THOR LiDAR (.mat, with --joints)")
     gs.add_argument("--format", choices=LASER_FORMATS, help="file format (default: from the file name)")
     gs.add_argument("--joints", type=Path, help="THOR joint file (head/neck angles), with --format thor")
-    gs.add_argument("--particles", type=_positive_int, default=30, help="number of particles M")
+    gs.add_argument("--particles", type=positive_int, default=30, help="number of particles M")
     gs.add_argument("--seed", type=int, default=0, help="random seed (same seed, same numbers)")
     gs.add_argument("--maps", choices=("best", "particles"), default="best",
                     help="one map from the best particle (the write-up) or one map per particle (RBPF)")
     gs.add_argument("--no-scan-match", action="store_true", help="no scan matching (the write-up's proposal)")
     gs.add_argument("--writeup", action="store_true",
                     help="the write-up's exact rule: 0/1 correlation, exp(c), resample every step, no scan matching")
-    gs.add_argument("--scans-limit", type=_positive_int, help="use only the first N scans")
+    gs.add_argument("--scans-limit", type=positive_int, help="use only the first N scans")
     gs.add_argument("--reference", type=Path, help="log with reference poses (e.g. GMapping's) for the aligned RMSE")
     gs.add_argument("--relations", type=Path, help="Kümmerle et al. relations file (same time base as --scans)")
     gs.add_argument("--tolerance", type=float, default=1e-3, help="time matching tolerance [s] (default 0.001)")
     gs.add_argument("--json", type=Path, help="write the metrics, parameters and seed to this JSON file")
     gs.add_argument("--map", type=Path, help="write the map and path to this PNG")
     gs.add_argument("--quiet", action="store_true", help="no progress bar")
-
-    from fastslam_edu.datasets.registry import add_arguments as add_data_arguments
-
-    add_data_arguments(sub.add_parser("data", help="fetch (or --check) the registered datasets into $FASTSLAM_EDU_DATA, "
-                                                   "one line per dataset"))
-    return parser
 
 
 #: Laser log formats of ``fastslam-edu gridslam``.

@@ -106,20 +106,21 @@ def run_sweep(function: Callable, jobs: Sequence[tuple], n_jobs: int | None = No
     return run_local(function, jobs, check_n_jobs(n_jobs))
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
+    """An argparse ``type`` for counts (``--jobs``, ``--particles``, ...): a whole number >= 1, or one line."""
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r} (expected a positive integer)") from None
     if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1 (got {value})")
+        raise argparse.ArgumentTypeError(f"must be >= 1 (got {value}): expected a positive integer")
     return value
 
 
 def add_sweep_options(parser: argparse.ArgumentParser) -> None:
     """The options every sweeping benchmark takes: ``--jobs N`` and ``--scheduler ADDRESS``."""
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--jobs", type=_positive_int, default=None, metavar="N",
+    group.add_argument("--jobs", type=positive_int, default=None, metavar="N",
                        help=f"processes on this machine (joblib; default all cores, here {default_n_jobs()}; "
                             "1: serially in this process)")
     group.add_argument("--scheduler", default=None, metavar="ADDRESS",

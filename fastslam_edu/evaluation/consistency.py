@@ -220,8 +220,3 @@ def simulator_params(config: SimConfig | None = None, **changes) -> FastSLAMPara
     return FastSLAMParams().replace(motion_noise=c.odometry_noise,
                        measurement_cov=np.diag([c.range_std**2, c.bearing_std**2]), range_std_slope=0.0,
                        measurement_correlation_s=None, **changes)
-
-
-#: The old name of :func:`pose_mean_and_covariance` (issue 30: ``fastslam_step.pose_covariance`` is the covariance
-#: alone), for ``tests/test_consistency.py``; drop it when that file imports the new name.
-pose_covariance = pose_mean_and_covariance

@@ -78,8 +78,3 @@ def sample_odometry_motion(particles, u, params: GridSLAMParams, rng: np.random.
     sigma = increment_noise_std(u, params)
     noise = rng.standard_normal(particles.shape) * sigma
     return compose(particles, np.asarray(u, dtype=float) + noise)
-
-
-#: The old name of :func:`sample_odometry_motion` (``core.motion.sample_motion`` is the velocity model's), for
-#: ``notebooks/17_grid_slam.ipynb`` and ``tests/test_gridslam.py``; drop it when they import the new name.
-sample_motion = sample_odometry_motion

@@ -250,10 +250,6 @@ def augment_state(state: EKFSLAMState, z, k: int, R) -> EKFSLAMState:
     return state
 
 
-#: The old name of :func:`augment_state` (``landmark_existence.add_landmark`` is FastSLAM's), for
-#: ``notebooks/05_ekf_slam.ipynb`` and ``tests/test_ekf_slam.py``; drop it when they import the new name.
-add_landmark = augment_state
-
 
 # ---------------------------------------------------------------- 3. the update
 

@@ -16,7 +16,7 @@ the first three terms exactly the single-robot smoother's for each robot (its pr
 odometry factors, its landmark sightings, built by :func:`~fastslam_edu.landmark.smoother.build_problem`), the last
 one per **robot-robot sighting** :math:`s`: at time :math:`t_s` robot :math:`a` measures range and bearing
 :math:`z_s = (r, \\varphi)` to the centre :math:`p^b = (x^b, y^b)` of robot :math:`b`, with the landmarks' model
-:math:`h` and noise :math:`R` (:func:`~fastslam_edu.landmark.smoother_factors.measurement_residuals`).
+:math:`h` and noise :math:`R` (:func:`~fastslam_edu.landmark.smoother_factors.sighting_residuals`).
 
 **The poses at the sighting's instant.** A sighting time is rarely a keyframe of both robots. Rather than adding
 keyframes (which would change each robot's problem), each robot's pose at :math:`t_s` is its last keyframe at or
@@ -49,21 +49,23 @@ One robot given, this is :func:`~fastslam_edu.landmark.smoother.smooth` (the sam
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
-import pandas as pd
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from fastslam_edu.core.se2 import relative
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.landmark.fastslam import FastSLAMParams, FastSLAMResult, evidence_fractions
+from fastslam_edu.landmark.fastslam import FastSLAMParams
 from fastslam_edu.landmark.smoother import (LANDMARK_ANCHOR_STD, PRIOR_STD, SmootherResult, SolverSettings,
                                             build_problem, solve_with_gate, starting_point)
-from fastslam_edu.landmark.smoother_factors import (dead_reckon_stream, keyframe_steps, measurement_residuals,
+from fastslam_edu.landmark.smoother_factors import (dead_reckon_stream, keyframe_steps, sighting_residuals,
                                                     odometry_residuals, whitening, wrap_pose_error)
+from fastslam_edu.landmark.robot_sightings import (compose_jacobian, compose_unwrapped, keyframe_offsets,
+                                                    robot_sighting_table, robot_sighting_weights)
 from fastslam_edu.landmark.smoother_laplace import ORDERING
 
 #: The robots' subject numbers in MR.CLAM.
@@ -181,102 +183,6 @@ def _per_robot(value, robots, name: str, default):
     return {a: default if value is None else value for a in robots}
 
 
-# --------------------------------------------------------------------------- the robot-robot factors
-
-
-def compose_jacobian(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """:math:`\\partial (x \\oplus \\delta) / \\partial x`, shape (n, 3, 3), for poses ``x`` (n, 3) and motions
-    ``delta`` (n, 3) in the frame of ``x``: the translation :math:`R(\\theta)\\delta_{xy}` swings with
-    :math:`\\theta`, so column 3 is :math:`(-(R\\delta)_y, (R\\delta)_x, 1)`."""
-    c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
-    J = np.broadcast_to(np.eye(3), (len(x), 3, 3)).copy()
-    J[:, 0, 2] = -(s * delta[:, 0] + c * delta[:, 1])
-    J[:, 1, 2] = c * delta[:, 0] - s * delta[:, 1]
-    return J
-
-
-def compose(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """:math:`x \\oplus \\delta`: ``(x + R(θ) δ_xy, θ + δ_θ)``, shapes (n, 3); θ not wrapped."""
-    c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
-    return np.stack([x[:, 0] + c * delta[:, 0] - s * delta[:, 1], x[:, 1] + s * delta[:, 0] + c * delta[:, 1],
-                     x[:, 2] + delta[:, 2]], axis=1)
-
-
-def keyframe_offsets(stream: EventStream, path: np.ndarray, keys: np.ndarray, t: np.ndarray):
-    """For times ``t`` (n,) inside the stream's span: the keyframe at or before each (index into ``keys``, (n,))
-    and the dead-reckoned motion :math:`\\delta` from it to ``t`` in its frame, (n, 3).
-
-    ``path`` (len(stream), 3) is the dead-reckoned pose at every step; between steps it is interpolated linearly
-    (steps are 15 ms apart at MR.CLAM's full rate).
-    """
-    st = np.asarray(stream.t, dtype=float)
-    j = np.clip(np.searchsorted(st, t, side="right") - 1, 0, len(st) - 1)
-    nxt = np.minimum(j + 1, len(st) - 1)
-    span = st[nxt] - st[j]
-    w = np.where(span > 0, (t - st[j]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
-    pose_t = (1 - w) * path[j] + w * path[nxt]
-    k = np.searchsorted(keys, j, side="right") - 1
-    return k, relative(path[keys[k]], pose_t)
-
-
-def robot_sighting_table(robot_sightings: dict, streams: dict):
-    """The robot-robot sightings between the robots of ``streams``, as arrays, and how many are left out.
-
-    ``robot_sightings``: robot → DataFrame ``time, subject, range, bearing`` (its sightings of other robots,
-    :func:`fastslam_edu.datasets.mrclam.robot_sightings`). Kept: sightings of a robot being solved, at a time inside
-    both robots' streams. Returns ``(observer (n,), seen (n,), t (n,), z (n, 2), skipped)``, in time order per observer.
-    """
-    robots = list(streams)
-    unknown = sorted(set(robot_sightings) - set(robots))
-    if unknown:
-        raise ValueError(f"robot sightings given for robot(s) {unknown}, which are not among the robots solved {robots}")
-    parts, skipped = [], 0
-    for a in robots:
-        df = robot_sightings.get(a)
-        if df is None or len(df) == 0:
-            continue
-        missing = [c for c in ("time", "subject", "range", "bearing") if c not in df.columns]
-        if missing:
-            raise ValueError(f"robot {a} sightings of robots: missing column(s) {missing}")
-        t = df["time"].to_numpy(dtype=float)
-        b = df["subject"].to_numpy(dtype=np.int64)
-        z = df[["range", "bearing"]].to_numpy(dtype=float)
-        if not (np.isfinite(t).all() and np.isfinite(z).all()):
-            row = int(np.flatnonzero(~(np.isfinite(t) & np.isfinite(z).all(axis=1)))[0])
-            raise ValueError(f"robot {a} sightings of robots, row {row}: NaN or inf in time {t[row]!r}, z {z[row].tolist()}")
-        if np.any(b == a):
-            row = int(np.flatnonzero(b == a)[0])
-            raise ValueError(f"robot {a} sightings of robots, row {row}: robot {a} sees itself")
-        keep = np.isin(b, robots)
-        inside = np.zeros(len(t), dtype=bool)
-        for other in np.unique(b[keep]):
-            sa, sb = streams[a], streams[int(other)]
-            lo, hi = max(sa.t[0], sb.t[0]), min(sa.t[-1], sb.t[-1])
-            inside |= (b == other) & (t >= lo) & (t <= hi)
-        skipped += int(np.sum(~inside))
-        parts.append((np.full(int(inside.sum()), a), b[inside], t[inside], z[inside]))
-    if not parts:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)), skipped
-    return (*(np.concatenate([p[i] for p in parts]) for i in range(4)), skipped)
-
-
-def robot_sighting_weights(observer, seen, t, tau: float | None) -> np.ndarray:
-    """Tempering :math:`\\beta_s` of the robot-robot sightings: per observer, each robot seen counts as a landmark
-    (:func:`~fastslam_edu.landmark.fastslam.evidence_fractions`); ``tau`` None: all 1."""
-    beta = np.ones(len(t))
-    if tau is None:
-        return beta
-    for a in np.unique(observer):
-        rows = np.flatnonzero(observer == a)
-        last_seen = np.full(max(ROBOTS) + 1, -np.inf)
-        times, starts = np.unique(t[rows], return_index=True)
-        ends = np.append(starts[1:], len(rows))
-        for ti, s, e in zip(times, starts, ends):
-            idx = rows[s:e]
-            beta[idx] = evidence_fractions(ti, seen[idx], last_seen, tau)
-    return beta
-
-
 # --------------------------------------------------------------------------- the joint problem
 
 
@@ -316,10 +222,10 @@ class _JointProblem:
         n_l = self.n_landmark_sightings
         wl, wr = which[:n_l], which[n_l:]
         k, lm = self.pose_of[wl], self.col_of[wl]
-        landmark = measurement_residuals(poses[k], lms[lm], self.z[:n_l][wl])
+        landmark = sighting_residuals(poses[k], lms[lm], self.z[:n_l][wl])
         xa, xb = poses[self.ra[wr]], poses[self.rb[wr]]
-        ya, yb = compose(xa, self.da[wr]), compose(xb, self.db[wr])
-        e, Jx, Jm = measurement_residuals(ya, yb[:, :2], self.z[n_l:][wr])
+        ya, yb = compose_unwrapped(xa, self.da[wr]), compose_unwrapped(xb, self.db[wr])
+        e, Jx, Jm = sighting_residuals(ya, yb[:, :2], self.z[n_l:][wr])
         Ja = Jx @ compose_jacobian(xa, self.da[wr])
         Jb = Jm @ compose_jacobian(xb, self.db[wr])[:, :2, :]
         return landmark, (e, Ja, Jb)
@@ -437,6 +343,54 @@ def smooth_robots(
     started = time.perf_counter()
     minimise, landmark_covariances = _backend(backend)
     params = FastSLAMParams() if params is None else params
+    robots, streams, stds, initial = _checked_inputs(streams, solver, x0, x0_std, initial)
+    own = {a: _robot_problem(streams[a], params, stds[a], initial[a], max_gap_s, solver) for a in robots}
+    layout = _variable_layout(streams, robots, own)
+    problem, skipped = _joint_problem(streams, robots, own, layout, robot_sightings, params, solver)
+    v = _joint_start(problem, robots, own, layout)
+    v, active, iterations, rounds, cost = solve_with_gate(problem, v, params.gate_chi2, solver, minimise)
+    fit = _Fit(v, active, iterations, rounds, float(cost), landmark_covariances(problem, v, active), skipped)
+    result = _result(streams, robots, own, layout, problem, fit)
+    return dataclasses.replace(result, seconds=time.perf_counter() - started, backend=backend)
+
+
+class _RobotProblem(NamedTuple):
+    """One robot's own least-squares problem (as :func:`~fastslam_edu.landmark.smoother.smooth` builds it):
+    its keyframe steps, dead-reckoned path, factors, landmarks seen, start vector and the sightings it uses."""
+
+    keys: np.ndarray
+    path: np.ndarray
+    problem: object
+    seen: np.ndarray
+    start: np.ndarray
+    use: np.ndarray
+
+
+class _Layout(NamedTuple):
+    """The joint vector: every keyframe pose in time order (``slot[a]``: robot a's keyframes), then the
+    landmarks seen by any robot (``seen_all``; ``column[n]``: landmark n's column, -1 if unseen)."""
+
+    n_poses: int
+    slot: dict
+    seen_all: np.ndarray
+    column: np.ndarray
+
+
+class _Fit(NamedTuple):
+    """What the gated minimisation returns, with the landmarks' Laplace covariances and the sightings skipped."""
+
+    v: np.ndarray
+    active: np.ndarray
+    iterations: int
+    rounds: int
+    cost: float
+    landmark_cov: np.ndarray
+    skipped: int
+
+
+def _checked_inputs(streams, solver: SolverSettings, x0, x0_std, initial):
+    """The robots (checked), their streams with ``x0`` applied, the prior's standard deviations and the initial
+    filter runs, each as a dict robot → value."""
     if not isinstance(streams, dict) or not streams:
         raise ValueError("smooth_robots: streams must be a non-empty dict robot → EventStream")
     robots = check_robot_numbers(list(streams))
@@ -452,78 +406,100 @@ def smooth_robots(
     for a in robots:
         if initial[a] is not None and len(initial[a].t) != len(streams[a]):
             raise ValueError(f"robot {a}: initial has {len(initial[a].t)} steps but the stream {len(streams[a])}")
+    return robots, streams, stds, initial
 
-    # each robot's own problem, as the single-robot smoother builds it
-    keys, paths, own, starts, use = {}, {}, {}, {}, {}
-    for a in robots:
-        s = streams[a]
-        keys[a] = keyframe_steps(s, max_gap_s)
-        paths[a] = dead_reckon_stream(s, s.x0, params.odometry_scale)
-        own[a], seen, use[a] = build_problem(s, params, keys[a], paths[a], s.x0, stds[a], tempering=solver.tempering)
-        starts[a] = (seen, starting_point(own[a], paths[a], keys[a], seen, initial[a]))
 
-    # the variable layout: every keyframe pose in time order, then the landmarks seen by any robot
-    times = np.concatenate([streams[a].t[keys[a]] for a in robots])
+def _robot_problem(stream: EventStream, params: FastSLAMParams, x0_std, initial, max_gap_s: float,
+                   solver: SolverSettings) -> _RobotProblem:
+    """One robot's own problem, as the single-robot smoother builds it, and its starting point."""
+    keys = keyframe_steps(stream, max_gap_s)
+    path = dead_reckon_stream(stream, stream.x0, params.odometry_scale)
+    problem, seen, use = build_problem(stream, params, keys, path, stream.x0, x0_std, tempering=solver.tempering)
+    return _RobotProblem(keys, path, problem, seen, starting_point(problem, path, keys, seen, initial), use)
+
+
+def _variable_layout(streams: dict, robots, own: dict) -> _Layout:
+    """Where each robot's keyframe poses and each landmark sit in the joint vector (:class:`_Layout`)."""
+    times = np.concatenate([streams[a].t[own[a].keys] for a in robots])
     order = np.argsort(times, kind="stable")
     slot_of_all = np.empty(len(times), dtype=np.int64)
     slot_of_all[order] = np.arange(len(times))
-    bounds = np.cumsum([0] + [len(keys[a]) for a in robots])
+    bounds = np.cumsum([0] + [len(own[a].keys) for a in robots])
     slot = {a: slot_of_all[bounds[i]:bounds[i + 1]] for i, a in enumerate(robots)}
-    seen_all = np.unique(np.concatenate([starts[a][0] for a in robots]).astype(np.int64))
+    seen_all = np.unique(np.concatenate([own[a].seen for a in robots]).astype(np.int64))
     column = np.full(streams[robots[0]].n_landmarks, -1)
     column[seen_all] = np.arange(len(seen_all))
+    return _Layout(len(times), slot, seen_all, column)
 
-    # the robot-robot sightings
+
+def _robot_sighting_factors(streams: dict, robots, own: dict, layout: _Layout, robot_sightings, params,
+                            solver: SolverSettings):
+    """The robot-robot sightings as factors: observer and seen robot's keyframe slots ``ra``, ``rb`` and the
+    dead-reckoned offsets ``da``, ``db`` to the sighting's instant, ``z``, the tempering weights β and the
+    whitening; returns ``(columns dict, number skipped)``."""
     observer, other, t_s, z_s, skipped = robot_sighting_table(robot_sightings or {}, streams)
     ra, rb = np.zeros(len(t_s), np.int64), np.zeros(len(t_s), np.int64)
     da, db = np.zeros((len(t_s), 3)), np.zeros((len(t_s), 3))
     for a in robots:
         for rows, out_slot, out_delta in ((observer == a, ra, da), (other == a, rb, db)):
             if rows.any():
-                k, d = keyframe_offsets(streams[a], paths[a], keys[a], t_s[rows])
-                out_slot[rows], out_delta[rows] = slot[a][k], d
+                k, d = keyframe_offsets(streams[a], own[a].path, own[a].keys, t_s[rows])
+                out_slot[rows], out_delta[rows] = layout.slot[a][k], d
     beta_s = robot_sighting_weights(observer, other, t_s, params.measurement_correlation_s if solver.tempering else None)
-    used_s = beta_s > 0
+    used = beta_s > 0
     Wg_s = whitening(params.measurement_covariance(z_s)) if len(z_s) else np.zeros((0, 2, 2))
+    factors = dict(ra=ra[used], rb=rb[used], da=da[used], db=db[used], z=z_s[used],
+                   Wm=np.sqrt(beta_s[used])[:, None, None] * Wg_s[used], Wg=Wg_s[used])
+    return factors, skipped
 
-    cat = np.concatenate
+
+def _joint_problem(streams: dict, robots, own: dict, layout: _Layout, robot_sightings, params,
+                   solver: SolverSettings):
+    """Every robot's factors and the robot-robot sightings in one :class:`_JointProblem`; and the number of
+    robot-robot sightings skipped."""
+    rr, skipped = _robot_sighting_factors(streams, robots, own, layout, robot_sightings, params, solver)
+    cat, slot, P = np.concatenate, layout.slot, {a: own[a].problem for a in robots}
     problem = _JointProblem(
-        n_poses=len(times), prior_slot=np.array([slot[a][0] for a in robots]),
-        x0=np.array([own[a].x0 for a in robots]), W0=np.array([own[a].W0 for a in robots]),
+        n_poses=layout.n_poses, prior_slot=np.array([slot[a][0] for a in robots]),
+        x0=np.array([P[a].x0 for a in robots]), W0=np.array([P[a].W0 for a in robots]),
         odo_a=cat([slot[a][:-1] for a in robots]), odo_b=cat([slot[a][1:] for a in robots]),
-        delta=cat([own[a].delta for a in robots]), Wo=cat([own[a].Wo for a in robots]),
-        z=cat([*(own[a].z for a in robots), z_s[used_s]]),
-        n_landmark_sightings=sum(len(own[a].z) for a in robots),
-        pose_of=cat([slot[a][own[a].pose_of] for a in robots]),
-        col_of=cat([column[starts[a][0][own[a].col_of]] for a in robots]),
-        ra=ra[used_s], rb=rb[used_s], da=da[used_s], db=db[used_s],
-        Wm=cat([*(own[a].Wm for a in robots), np.sqrt(beta_s[used_s])[:, None, None] * Wg_s[used_s]]),
-        Wg=cat([*(own[a].Wg for a in robots), Wg_s[used_s]]),
+        delta=cat([P[a].delta for a in robots]), Wo=cat([P[a].Wo for a in robots]),
+        z=cat([*(P[a].z for a in robots), rr["z"]]),
+        n_landmark_sightings=sum(len(P[a].z) for a in robots),
+        pose_of=cat([slot[a][P[a].pose_of] for a in robots]),
+        col_of=cat([layout.column[own[a].seen[P[a].col_of]] for a in robots]),
+        ra=rr["ra"], rb=rr["rb"], da=rr["da"], db=rr["db"],
+        Wm=cat([*(P[a].Wm for a in robots), rr["Wm"]]),
+        Wg=cat([*(P[a].Wg for a in robots), rr["Wg"]]),
     )
-    v = _joint_start(problem, robots, own, starts, slot, column, len(seen_all))
-    v, active, iterations, rounds, cost = solve_with_gate(problem, v, params.gate_chi2, solver, minimise)
-    poses, lms = problem.split(v)
-    cov = landmark_covariances(problem, v, active)
-    n_l = problem.n_landmark_sightings
+    return problem, skipped
+
+
+def _result(streams: dict, robots, own: dict, layout: _Layout, problem, fit: _Fit) -> MultiRobotResult:
+    """The solution as a :class:`MultiRobotResult`: each robot's keyframe poses, the map in survey order (only
+    landmarks with a sighting through the gate), the counts and the notes."""
+    poses, lms = problem.split(fit.v)
+    active, n_l, seen_all = fit.active, problem.n_landmark_sightings, layout.seen_all
     kept = np.bincount(problem.col_of[active[:n_l]], minlength=len(seen_all)) > 0
     N = streams[robots[0]].n_landmarks
     landmarks, landmarks_cov, observed = np.full((N, 2), np.nan), np.full((N, 2, 2), np.nan), np.zeros(N, dtype=bool)
-    landmarks[seen_all[kept]], landmarks_cov[seen_all[kept]], observed[seen_all[kept]] = lms[kept], cov[kept], True
+    landmarks[seen_all[kept]], landmarks_cov[seen_all[kept]] = lms[kept], fit.landmark_cov[kept]
+    observed[seen_all[kept]] = True
     notes = []
-    if len(robots) > 1 and not np.any(used_s):
+    if len(robots) > 1 and len(problem.z) == n_l:  # no robot-robot sighting went into the problem
         notes.append(f"no robot-robot sighting between robots {', '.join(map(str, robots))}: "
                      "the robots are tied together only by the landmarks they share")
-    if skipped:
-        notes.append(f"{skipped} robot-robot sighting(s) left out: of robots not solved, or outside a robot's log")
+    if fit.skipped:
+        notes.append(f"{fit.skipped} robot-robot sighting(s) left out: of robots not solved, or outside a robot's log")
     return MultiRobotResult(
-        robots=robots, t={a: streams[a].t[keys[a]] for a in robots}, steps=keys,
-        poses={a: wrap_pose_error(poses[slot[a]]) for a in robots}, landmarks=landmarks,
+        robots=robots, t={a: streams[a].t[own[a].keys] for a in robots}, steps={a: own[a].keys for a in robots},
+        poses={a: wrap_pose_error(poses[layout.slot[a]]) for a in robots}, landmarks=landmarks,
         landmarks_cov=landmarks_cov, observed=observed, landmark_subjects=streams[robots[0]].landmark_subjects,
-        iterations=iterations, rounds=rounds, cost=float(cost), measurements_used=int(active[:n_l].sum()),
+        iterations=fit.iterations, rounds=fit.rounds, cost=fit.cost, measurements_used=int(active[:n_l].sum()),
         measurements_rejected=int((~active[:n_l]).sum()),
-        measurements_zero_weight=int(sum((~use[a]).sum() for a in robots)),
+        measurements_zero_weight=int(sum((~own[a].use).sum() for a in robots)),
         robot_sightings_used=int(active[n_l:].sum()), robot_sightings_gated=int((~active[n_l:]).sum()),
-        robot_sightings_skipped=int(skipped), seconds=time.perf_counter() - started, notes=notes, backend=backend,
+        robot_sightings_skipped=int(fit.skipped), seconds=0.0, notes=notes, backend="scipy",
     )
 
 
@@ -537,31 +513,28 @@ def _backend(backend: str):
     from fastslam_edu.landmark import smoother_gtsam
 
     smoother_gtsam.require_gtsam()
-    return smoother_gtsam.levenberg_marquardt, smoother_gtsam.landmark_covariances
+    return smoother_gtsam.gtsam_levenberg_marquardt, smoother_gtsam.landmark_covariances
 
 
 def _with_x0(stream: EventStream, x0) -> EventStream:
-    import dataclasses
-
     x0 = np.asarray(x0, dtype=float)
     if x0.shape != (3,) or not np.isfinite(x0).all():
         raise ValueError(f"x0 must be a finite pose (x, y, θ), got {x0.tolist()}")
     return dataclasses.replace(stream, x0=x0)
 
 
-def _joint_start(problem, robots, own, starts, slot, column, n_landmarks: int) -> np.ndarray:
+def _joint_start(problem, robots, own: dict, layout: _Layout) -> np.ndarray:
     """Each robot's start (:func:`~fastslam_edu.landmark.smoother.starting_point`) in the joint layout; a landmark
     seen by several robots starts at the mean of their starts."""
+    n_landmarks = len(layout.seen_all)
     poses = np.zeros((problem.n_poses, 3))
     lms, count = np.zeros((n_landmarks, 2)), np.zeros(n_landmarks)
     for a in robots:
-        seen, v = starts[a]
-        p, lm = own[a].split(v)
-        poses[slot[a]] = p
-        np.add.at(lms, column[seen], lm)
-        np.add.at(count, column[seen], 1)
+        p, lm = own[a].problem.split(own[a].start)
+        poses[layout.slot[a]] = p
+        np.add.at(lms, layout.column[own[a].seen], lm)
+        np.add.at(count, layout.column[own[a].seen], 1)
     return np.concatenate([poses.ravel(), (lms / np.maximum(count, 1)[:, None]).ravel()])
 
 
-__all__ = ["ROBOTS", "MultiRobotResult", "check_robot_numbers", "check_streams", "compose", "compose_jacobian",
-           "keyframe_offsets", "laplace_landmarks", "robot_sighting_table", "robot_sighting_weights", "smooth_robots"]
+__all__ = ["ROBOTS", "MultiRobotResult", "check_robot_numbers", "check_streams", "laplace_landmarks", "smooth_robots"]

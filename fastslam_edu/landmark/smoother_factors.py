@@ -235,9 +235,3 @@ def wrap_pose_error(e: np.ndarray) -> np.ndarray:
     e = np.array(e, dtype=float)
     e[..., 2] = wrap_angle(e[..., 2])
     return e
-
-
-#: The old name of :func:`sighting_residuals` (``evaluation.noise_estimation.measurement_residuals`` is the
-#: residuals against groundtruth), for ``landmark/multi_robot.py``, ``tests/test_multi_robot.py`` and
-#: ``tests/test_smoother_gtsam.py``; drop it when they import the new name.
-measurement_residuals = sighting_residuals

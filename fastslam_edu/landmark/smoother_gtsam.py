@@ -322,7 +322,7 @@ def robot_sighting_factor(ra, rb, da, db, z, W, huber: float | None = None):
     ``da``, ``db`` (n, 3) the dead-reckoned motions from the keyframes to the sighting's time, ``z`` (n, 2) range
     [m] and bearing [rad], ``W`` (n, 2, 2) :math:`\\sqrt{\\beta_s} R_s^{-1/2}`; a unit noise model, so its error is
     :math:`\\tfrac12 \\sum_s \\|r_s\\|^2`, the package's. The Jacobians are the package's
-    (:math:`W\\,\\partial e/\\partial x` through :func:`~fastslam_edu.landmark.multi_robot.compose_jacobian`) times
+    (:math:`W\\,\\partial e/\\partial x` through :func:`~fastslam_edu.landmark.robot_sightings.compose_jacobian`) times
     :math:`\\mathrm{blockdiag}(R(\\theta), 1)`, GTSAM's perturbation :math:`x \\exp(\\delta)` in the world frame.
 
     With ``huber`` (the first round's Huber loss at :math:`c`, per sighting as the package's), a sighting with
@@ -332,7 +332,7 @@ def robot_sighting_factor(ra, rb, da, db, z, W, huber: float | None = None):
     :math:`g J + g'(s)\\, r_s r_s^\\top J / s`, :math:`g'(s) = -c (s - c) / (s^2 \\sqrt{2cs - c^2})`.
     """
     gtsam = require_gtsam()
-    from fastslam_edu.landmark.multi_robot import compose, compose_jacobian
+    from fastslam_edu.landmark.robot_sightings import compose_jacobian, compose_unwrapped
     from fastslam_edu.landmark.smoother_factors import sighting_residuals
 
     slots, index = np.unique(np.r_[ra, rb], return_inverse=True)
@@ -344,7 +344,7 @@ def robot_sighting_factor(ra, rb, da, db, z, W, huber: float | None = None):
     def error(factor, values, jacobians):
         x = np.array([_pose_array(values.atPose2(key)) for key in keys])
         xa, xb = x[ia], x[ib]
-        e, Jx, Jm = sighting_residuals(compose(xa, da), compose(xb, db)[:, :2], z)
+        e, Jx, Jm = sighting_residuals(compose_unwrapped(xa, da), compose_unwrapped(xb, db)[:, :2], z)
         r = np.einsum("nij,nj->ni", W, e)
         if jacobians is None and huber is None:
             return r.ravel()
@@ -386,8 +386,3 @@ def landmark_covariances(problem, v, active) -> np.ndarray:
     """The landmarks' Laplace covariances (N, 2, 2) [m²] from ``gtsam.Marginals`` at ``v`` (:func:`gtsam_laplace`,
     without the poses'): GTSAM's counterpart of :func:`fastslam_edu.landmark.multi_robot.laplace_landmarks`."""
     return gtsam_laplace(problem, v, active, with_poses=False)[1]
-
-
-#: The old name of :func:`gtsam_levenberg_marquardt` (the package's own is ``smoother.levenberg_marquardt``), for
-#: ``landmark/multi_robot.py``; drop it when that module names the new one.
-levenberg_marquardt = gtsam_levenberg_marquardt
