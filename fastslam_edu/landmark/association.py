@@ -98,8 +98,8 @@ from fastslam_edu.landmark.association_history import best_history, merge_copies
 from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
 from fastslam_edu.landmark.association_params import AssociationParams, MapParticles, initial_particles
 from fastslam_edu.landmark.fastslam_step import (copy_order, copy_row, is_increasing, motion_prediction_of,
-                                                 normalise_weights, pose_covariance, resampling_indices,
-                                                 sample_segment, standard_normals, weighted_mean_pose)
+                                                 move_through_segment, normalise_weights, pose_covariance,
+                                                 resampling_indices, segment_normals, weighted_mean_pose)
 from fastslam_edu.landmark.joint_compatibility import joint_slots
 from fastslam_edu.landmark.landmark_existence import (add_landmark, existence_log_odds, negative_evidence,
                                                      retire_landmarks)
@@ -308,25 +308,13 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
     """
     M = P.poses.shape[0]
     w = out.w
-    longest = 0
-    for r in range(segments.shape[0]):
-        longest = max(longest, segments[r, 1] - segments[r, 0] + 1)
-    normals = np.empty((longest, s.n_draws, M))  # one buffer for every segment's normals (as run_segments)
+    normals = segment_normals(segments, s.n_draws, M)
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
         a, b = L.offsets[last], L.offsets[last + 1]
         if out.n_renames[0] + M * P.mu.shape[1] > out.renames.shape[0]:
             return r  # the record of hand-overs could fill up at this instant: the caller makes it larger, and on
-        measured = b > a
-        n_record = last - first + (0 if measured else 1)
-        if x_start is not None:
-            for m in range(M):
-                copy_row(P.poses, m, x_start[m])
-        eps = normals[:last - first + 1]
-        standard_normals(rng, eps)
-        sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, w,
-                       out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
-        if not measured:
+        if not move_through_segment(P.poses, L, s, segments[r], rng, out, normals, x_start):
             continue
         q = out.totals[INSTANTS_DONE]
         before = out.next_ident[0]

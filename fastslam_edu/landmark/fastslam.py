@@ -18,15 +18,8 @@ The filter of Montemerlo et al. (2002), in the order of the MR.CLAM write-up's
    :math:`M` (default 0.5); weights are reset to uniform afterwards.
 4. **Combine**: the weighted mean pose and map, and the highest-weight particle.
 
-State of the filter (:class:`ParticleSet`), for :math:`M` particles and :math:`K` landmarks:
-
-=========  ==============  ==========================================
-poses      (M, 3)          :math:`x^{[m]} = (x, y, \\theta)` [m, m, rad]
-mu         (M, K, 2)       :math:`\\mu_k^{[m]}` [m]
-sigma      (M, K, 2, 2)    :math:`\\Sigma_k^{[m]}` [m²]
-seen       (M, K) bool     landmark k initialised in particle m
-logw       (M,)            :math:`\\log w^{[m]}` (unnormalised)
-=========  ==============  ==========================================
+The state of the filter is a :class:`~fastslam_edu.landmark.particle_set.ParticleSet` (its arrays, shapes and units:
+:mod:`fastslam_edu.landmark.particle_set`).
 
 Steps 1 and 2 run particle by particle, as table 13.1 of *Probabilistic
 Robotics* reads, in the compiled kernels of :mod:`fastslam_edu.landmark.fastslam_step`;

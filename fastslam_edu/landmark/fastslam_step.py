@@ -506,6 +506,38 @@ def copy_row(a, i, out):
 
 
 @njit(cache=True)
+def segment_normals(segments, n_draws, m):
+    """One buffer (L, ``n_draws``, ``m``) for the standard normals of every segment of ``segments`` (S, 2), L steps
+    the longest, allocated once for a run."""
+    longest = 0
+    for r in range(segments.shape[0]):
+        longest = max(longest, segments[r, 1] - segments[r, 0] + 1)
+    return np.empty((longest, n_draws, m))
+
+
+@njit(cache=True)
+def move_through_segment(poses, L, s, segment, rng, out, normals, x_start):
+    """Line 4 for every particle (``poses`` (M, 3)) through the steps ``segment = (first, last)`` of the stream
+    ``L``, recording the estimates of its steps in ``out.pose_mean``, ``out.pose_best`` (weights ``out.w``) — its
+    last step's too unless it has sightings (a measurement step's estimate comes after the update). ``normals``
+    from :func:`segment_normals`; ``x_start`` (M, 3): FastSLAM 2.0 keeps there the poses the segment starts from
+    (None for FastSLAM 1.0). Returns whether the last step has sightings. The segment loop of both runs, with
+    known correspondences (:func:`run_segments`) and without
+    (:func:`fastslam_edu.landmark.association.run_unknown_segments`)."""
+    first, last = segment[0], segment[1]
+    measured = L.offsets[last + 1] > L.offsets[last]
+    n_record = last - first + (0 if measured else 1)
+    if x_start is not None:
+        for i in range(poses.shape[0]):
+            copy_row(poses, i, x_start[i])
+    eps = normals[:last - first + 1]
+    standard_normals(rng, eps)
+    sample_segment(poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
+                   out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
+    return measured
+
+
+@njit(cache=True)
 def run_segments(P, L, s, segments, rng, out, x_start):
     """Steps 1–4 over ``segments`` (S, 2): runs of steps ``start..end``, each ending at a measurement step
     or a cut; for each, line 4 for every particle (:func:`sample_segment`), then :func:`measure_instant`.
@@ -516,23 +548,10 @@ def run_segments(P, L, s, segments, rng, out, x_start):
     when asked for). With no segments (S = 0) nothing runs: the call compiles the run, or loads it from
     numba's cache (:meth:`fastslam_edu.landmark.fastslam.FilterRun.run_compiled` times that apart).
     """
-    m = P.poses.shape[0]
-    longest = 0
-    for r in range(segments.shape[0]):
-        longest = max(longest, segments[r, 1] - segments[r, 0] + 1)
-    normals = np.empty((longest, s.n_draws, m))  # one buffer for every segment's normals
+    normals = segment_normals(segments, s.n_draws, P.poses.shape[0])
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
-        measured = L.offsets[last + 1] > L.offsets[last]
-        n_record = last - first + (0 if measured else 1)  # a measurement step's estimate comes after the update
-        if x_start is not None:
-            for i in range(m):
-                copy_row(P.poses, i, x_start[i])
-        eps = normals[:last - first + 1]
-        standard_normals(rng, eps)
-        sample_segment(P.poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
-                       out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
-        if not measured:
+        if not move_through_segment(P.poses, L, s, segments[r], rng, out, normals, x_start):
             continue
         if x_start is None:  # (numba prunes a test on an argument only when it stands alone)
             measure_instant(P, L, s, last, rng, out, None)
