@@ -657,3 +657,36 @@ def test_the_benchmark_interval_of_the_mean_of_medians():
         mean_of_medians([[0.5, np.nan]])
     with pytest.raises(ValueError, match="mean_of_medians: values must be"):
         mean_of_medians([[0.5], []])
+
+
+def test_resampling_the_maps_in_place_equals_fancy_indexing():
+    """select_maps (in place, in copy_order when the indices increase; from a copy otherwise) against numpy's
+    ``a[idx]`` on every array of the set (an independent copy), for increasing, repeated and shuffled indices;
+    the known-correspondence set's select_in_place likewise."""
+    from fastslam_edu.landmark.association import select_maps
+    from fastslam_edu.landmark.fastslam_step import copy_order, is_increasing, select_in_place
+    from fastslam_edu.landmark.step_records import Particles
+
+    rng = np.random.default_rng(3)
+    M, K = 7, 5
+    cases = [np.sort(rng.integers(0, M, M)), [0, 0, 1, 2, 4, 6, 6], [1, 2, 3, 4, 5, 6, 6], np.arange(M), np.full(M, 6),
+             rng.permutation(M), rng.integers(0, M, M)]  # chains moving up and down: the copy order matters
+    for idx in (np.asarray(c, dtype=np.int64) for c in cases):
+        P = initial_particles(M, K, np.zeros(3))
+        for a in P[:-1]:
+            a[...] = rng.integers(-50, 50, a.shape)  # every slot distinct enough to notice a wrong copy
+        expected = [a[idx].copy() for a in P[:-1]]
+        select_maps(P, idx)
+        for name, a, b in zip(P._fields, P[:-1], expected):
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        assert not P.logw.any()
+        Q = Particles(rng.normal(size=(M, 3)), rng.normal(size=(M, K, 2)), rng.normal(size=(M, K, 2, 2)),
+                      rng.random((M, K)) < 0.5, rng.integers(0, 9, (M, K)), rng.normal(size=M))
+        expected = [a[idx].copy() for a in Q[:-1]]
+        select_in_place(Q, idx)
+        for name, a, b in zip(Q._fields, Q[:-1], expected):
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        if is_increasing(idx):  # each particle that changes is written once, none read after it is written
+            order = copy_order(idx).tolist()
+            assert sorted(order) == [m for m in range(M) if idx[m] != m]
+            assert all(idx[p] == p or p not in order[:i] for i, m in enumerate(order) for p in [idx[m]])
