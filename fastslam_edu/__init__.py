@@ -25,7 +25,14 @@ datasets        data in, data made (imports no mapping or evaluation code)
 landmark        landmark SLAM
     fastslam_step   one FastSLAM 1.0 step per particle, as Probabilistic Robotics table 13.1 reads, and the
                     run over a log, compiled (numba)
-    fastslam        the particle set, resampling, combining, and the run over a log (hooks, gate, proposals)
+    step_records    the named tuples the compiled step takes and writes (particles, sightings, log, settings, record)
+    particle_set    the particle set and the four steps on it: propagate, update, resample, combine
+    fastslam        the filter's settings and the run over a log (compiled, or step by step for hooks)
+    proposal_strategies  how step 1 moves the particles in the run: the motion model, FastSLAM 2.0, known poses
+    hooks           code run alongside the filter: a kidnap, a monitor, the progress bar
+    gate            the outlier gate and its escape
+    evidence        the fraction beta of independent evidence in sightings close in time
+    segments        the log cut into runs of odometry steps that end at a measurement step
     proposal        FastSLAM 2.0's proposal: the pose sampled given the sighting
     tree            Montemerlo's persistent balanced tree of landmark filters
     fastslam_tree   the filter with tree-backed maps (O(M log N) resampling)
@@ -33,6 +40,11 @@ landmark        landmark SLAM
     ekf_slam_steps  its state and table 10.1's steps: prediction, a new landmark, the update (Joseph form)
     ekf_slam_association  table 10.2: Mahalanobis distances, nearest neighbour or the assignment, new landmarks
     association     FastSLAM with unknown correspondences: per-particle maximum likelihood, new landmarks, negative evidence
+    association_params  its settings, as the kernels take them, and the particle set with variable-size maps
+    association_likelihood  the likelihood of a sighting given a landmark, with the pose's drift; p0 of a new one
+    joint_compatibility  the sightings of one instant decided together
+    landmark_existence  adding, removing and retiring landmarks: negative evidence, the hand-over of identities
+    association_history  the best particle's association history through its ancestors, merging copies
     smoother        least squares over the whole log: the most probable path and map under the same model
     smoother_factors  its factors: keyframes, dead reckoning, odometry and sightings, residuals and Jacobians
     smoother_laplace  its Laplace approximation: the covariances of poses and landmarks at the solution
