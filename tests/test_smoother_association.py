@@ -53,7 +53,7 @@ def test_assignment_never_gives_one_landmark_two_sightings_of_a_frame():
 
 def _log_and_truth(sim):
     data, stream, filt = sim
-    log = sa._prepare(stream, SIM_FILTER, None, SIM_PARAMS)
+    log = sa.prepare_log(stream, SIM_FILTER, None, SIM_PARAMS)
     return data, stream, filt, log, sa.SmootherAssociationParams()
 
 
@@ -81,3 +81,49 @@ def test_a_planted_split_is_merged(sim):
     lms = np.vstack([data.landmark_positions, data.landmark_positions[k] + [0.05, 0.0]])
     state = sa.alternate(log, filt.pose_mean[log.keys], labels, lms, settings)
     assert len(np.unique(state.labels[i])) == 1 and state.labels[i[0]] >= 0
+
+
+def _block_tridiagonal_system(rng, n_poses, n_landmarks):
+    """A random symmetric positive definite A: block-tridiagonal 3x3 pose blocks, a dense-ish landmark border."""
+    P, L = 3 * n_poses, 2 * n_landmarks
+    J = np.zeros((3 * n_poses + 2 * 4 * n_landmarks, P + L))
+    row = 0
+    for k in range(n_poses - 1):  # odometry-like rows tie pose k to k+1
+        J[row:row + 3, 3 * k:3 * k + 6] = rng.normal(size=(3, 6))
+        row += 3
+    J[row:row + 3, :3] = np.eye(3)
+    row += 3
+    for j in range(n_landmarks):  # sighting-like rows tie a pose to a landmark
+        for k in rng.choice(n_poses, 4, replace=False):
+            J[row:row + 2, 3 * k:3 * k + 3] = rng.normal(size=(2, 3))
+            J[row:row + 2, P + 2 * j:P + 2 * j + 2] = rng.normal(size=(2, 2))
+            row += 2
+    A = J[:row].T @ J[:row] + 1e-3 * np.eye(P + L)
+    return A, rng.normal(size=P + L), P
+
+
+def test_schur_step_solves_the_normal_equations_as_a_dense_solver():
+    from scipy.sparse import csc_matrix
+
+    from fastslam_edu.landmark.smoother_association_solve import schur_step
+    rng = np.random.default_rng(1)
+    for n_poses, n_landmarks in [(5, 0), (12, 3), (40, 7)]:
+        A, g, P = _block_tridiagonal_system(rng, n_poses, n_landmarks)
+        step = schur_step(csc_matrix(A), g, P)
+        assert np.allclose(step, np.linalg.solve(A, -g), rtol=1e-8, atol=1e-10)
+    A[0, 9] = A[9, 0] = 0.5  # pose 0 tied to pose 3: not banded, the caller's general solver takes it
+    assert schur_step(csc_matrix(A), g, P) is None
+
+
+def test_the_association_solve_is_the_smoothers_solve(sim):
+    from fastslam_edu.landmark.smoother import PRIOR_STD, build_problem, levenberg_marquardt
+    from fastslam_edu.landmark.smoother_association_solve import levenberg_marquardt_schur
+    data, stream, filt, log, settings = _log_and_truth(sim)
+    problem, seen, _ = build_problem(stream, SIM_FILTER, log.keys, log.path, log.x0, PRIOR_STD, tempering=False)
+    v = np.concatenate([filt.pose_mean[log.keys].ravel(), data.landmark_positions[seen].ravel()])
+    v[1::3] += 0.05  # off the filter's path: several steps to take
+    problem.anchor = problem.split(v)[1].copy()
+    active = np.ones(len(problem.z), dtype=bool)
+    a, it_a, cost_a = levenberg_marquardt_schur(problem, v, active, huber=1.0, max_iterations=50, tol=1e-12)
+    b, it_b, cost_b = levenberg_marquardt(problem, v, active, huber=1.0, max_iterations=50, tol=1e-12)
+    assert it_a > 1 and np.allclose(a, b, atol=1e-8) and abs(cost_a - cost_b) <= 1e-9 * cost_b

@@ -1,0 +1,118 @@
+"""Step (b) of the smoother's data association, fast: Levenberg–Marquardt whose linear step eliminates the map first.
+
+The smoother's normal equations :math:`(A + \\mu D)\\,\\delta = -g` over the keyframe poses :math:`p` and the
+landmarks :math:`l` have a pose block :math:`A_{pp}` that is *block tridiagonal* (odometry ties each keyframe to the
+next; the prior sits on the first) and a border :math:`A_{pl}` (sightings tie poses to landmarks). With the
+landmarks' Schur complement
+
+.. math::
+
+    S = A_{ll} - A_{pl}^\\top A_{pp}^{-1} A_{pl}, \\qquad
+    S\\,\\delta_l = -g_l + A_{pl}^\\top A_{pp}^{-1} g_p, \\qquad A_{pp}\\,\\delta_p = -g_p - A_{pl}\\,\\delta_l,
+
+:math:`A_{pp}^{-1}` is applied by a banded Cholesky factor (bandwidth 5: two 3 × 3 blocks) to :math:`1 + 2L`
+right-hand sides, and :math:`S` is a small dense (2L, 2L) matrix: linear in the number of keyframes, where a general
+sparse LU of the whole matrix fills the landmarks' rows. The association solves the problem many times (every
+round of every start), so this step sets its time. Same steps, same stopping rule and same Huber weights as
+:func:`fastslam_edu.landmark.smoother.levenberg_marquardt` (its signature: usable as ``solve_with_gate``'s
+``minimise``); a problem with calibration columns, or a pose block that is not banded, goes to that function.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
+
+from fastslam_edu.landmark.smoother import levenberg_marquardt
+
+#: Upper bandwidth of the pose block: keyframe k's 3 variables meet keyframe k+1's (one 3 × 3 block off the diagonal).
+POSE_BANDWIDTH = 5
+
+
+def banded_upper(A_pp: sp.spmatrix, u: int = POSE_BANDWIDTH) -> np.ndarray | None:
+    """The upper band of the symmetric ``A_pp`` (P, P) in LAPACK's layout ``ab[u + i - j, j] = A[i, j]`` (u+1, P), or
+    None when an entry lies outside the band."""
+    C = A_pp.tocoo()
+    off = C.col - C.row
+    if np.any(np.abs(off) > u):
+        return None
+    ab = np.zeros((u + 1, A_pp.shape[0]))
+    up = off >= 0
+    np.add.at(ab, (u - off[up], C.col[up]), C.data[up])
+    return ab
+
+
+def schur_step(A: sp.spmatrix, g: np.ndarray, n_pose_vars: int) -> np.ndarray | None:
+    """:math:`\\delta = -A^{-1} g` by the landmarks' Schur complement (module docstring); ``A`` (V, V) symmetric
+    positive definite, its first ``n_pose_vars`` variables the poses. None when the pose block is not banded or not
+    positive definite (the caller then uses a general solver)."""
+    A = A.tocsc()
+    P = n_pose_vars
+    ab = banded_upper(A[:P, :P])
+    if ab is None:
+        return None
+    try:
+        factor = cholesky_banded(ab)
+    except LinAlgError:
+        return None
+    A_pl = A[:P, P:]  # sparse: a landmark meets only the poses that see it
+    solved = cho_solve_banded((factor, False), np.column_stack([g[:P], A_pl.toarray()]))  # A_pp^-1 [g_p, A_pl]
+    Ainv_g, Ainv_pl = solved[:, 0], solved[:, 1:]
+    S = A[P:, P:].toarray() - A_pl.T @ Ainv_pl
+    d_l = np.linalg.solve(S, -(g[P:] - A_pl.T @ Ainv_g)) if S.shape[0] else np.zeros(0)
+    d_p = -(Ainv_g + Ainv_pl @ d_l)
+    return np.concatenate([d_p, d_l])
+
+
+def _robust_cost(problem, v, active, huber):
+    """Cost ½‖r‖² with the Huber loss on each sighting's ‖r_i‖ (radius ``huber``; None: none), residuals,
+    Jacobian, the sightings' IRLS weights and their rows."""
+    r, J, rows = problem.evaluate(v, active)
+    r_m = r[rows].reshape(-1, 2)
+    s = np.sqrt(np.sum(r_m * r_m, axis=1))
+    if huber is None:
+        w, rho = np.ones(len(s)), 0.5 * s * s
+    else:
+        w = np.where(s <= huber, 1.0, huber / np.maximum(s, 1e-300))
+        rho = np.where(s <= huber, 0.5 * s * s, huber * s - 0.5 * huber * huber)
+    other = np.ones(len(r), dtype=bool)
+    other[rows] = False
+    return 0.5 * r[other] @ r[other] + rho.sum(), r, J, w, rows
+
+
+def levenberg_marquardt_schur(problem, v, active, *, huber, max_iterations, tol):
+    """:func:`fastslam_edu.landmark.smoother.levenberg_marquardt` with :func:`schur_step` for the damped step
+    :math:`(A + \\mu\\,\\mathrm{diag} A)\\,\\delta = -g`; returns ``(v, iterations, cost)``."""
+    if problem.n_extra:
+        return levenberg_marquardt(problem, v, active, huber=huber, max_iterations=max_iterations, tol=tol)
+    P = 3 * problem.n_poses
+    cost, r, J, w, rows = _robust_cost(problem, v, active, huber)
+    lam, it = 1e-4, 0
+    for it in range(1, max_iterations + 1):
+        sw = np.ones(len(r))  # IRLS: the Huber weights on the sightings' rows
+        sw[rows] = np.repeat(np.sqrt(w), 2)
+        Jw = sp.diags(sw) @ J
+        A = (Jw.T @ Jw).tocsc()
+        g = Jw.T @ (sw * r)
+        D = sp.diags(A.diagonal())
+        while True:
+            step = schur_step(A + lam * D, g, P)
+            if step is None:
+                return levenberg_marquardt(problem, v, active, huber=huber, max_iterations=max_iterations, tol=tol)
+            new_cost, r_new, J_new, w_new, _ = _robust_cost(problem, v + step, active, huber)
+            if new_cost <= cost:
+                break
+            lam *= 10.0
+            if lam > 1e12:
+                return v, it, cost
+        v = v + step
+        done = cost - new_cost <= tol * max(cost, 1e-12) or np.max(np.abs(step)) < 1e-9
+        cost, r, J, w = new_cost, r_new, J_new, w_new
+        lam = max(lam / 10.0, 1e-12)
+        if done:
+            break
+    return v, it, cost
+
+
+__all__ = ["POSE_BANDWIDTH", "banded_upper", "schur_step", "levenberg_marquardt_schur"]
