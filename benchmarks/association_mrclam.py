@@ -42,6 +42,8 @@ runs them (only the times differ: ``filter_seconds`` and the JSON's ``sweep.wall
 :func:`fastslam_edu.app.experiment.summarize_smoother_association`), in a second table: its accuracy, the oracle and
 the ratio (target >= 0.95), spurious landmarks (target <= 1), the aligned landmark error (target <= 0.15 m) and its
 seconds (target <= 30 s per robot on the 2-core machine); the JSON gains ``smoother`` (its runs and table).
+``--smoother-runs K``: the smoother starts from K filter runs (seeds s, s + 1000, ..., s + 1000 (K-1) for seed s),
+whose starts compete by their final penalised cost; its seconds include the K-1 extra filter runs.
 
 Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs N | --scheduler ADDRESS] [--greedy] [--smoother]
 [--out FILE]
@@ -57,6 +59,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info, machine_line  # noqa: E402
 
@@ -66,7 +70,7 @@ from fastslam_edu.app.sweep import SweepError, add_sweep_options, run_sweep  # n
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.evaluation.association import OnlineCeiling  # noqa: E402
 from fastslam_edu.evaluation.metrics import mean_of_medians  # noqa: E402
-from fastslam_edu.landmark.association import AssociationParams  # noqa: E402
+from fastslam_edu.landmark.association import AssociationParams, run_unknown  # noqa: E402
 from fastslam_edu.landmark.smoother_association import smooth_association  # noqa: E402
 
 ROBOTS = [(1, 2), (6, 1), (6, 2), (6, 3), (6, 4), (6, 5)]  # named by the targets
@@ -100,10 +104,14 @@ def _run(dataset: int, robot: int, seed: int, params: AssociationParams) -> dict
             "path_rmse_aligned_m": summary["path_rmse_aligned_m"], "filter_seconds": summary["filter_seconds"]}
 
 
-def _run_smoother(dataset: int, robot: int, seed: int, params: AssociationParams) -> dict:
-    """One job of the ``--smoother`` sweep: FastSLAM without barcodes, then the smoother's association from it."""
+def _run_smoother(dataset: int, robot: int, seed: int, params: AssociationParams, runs: int = 1) -> dict:
+    """One job of the ``--smoother`` sweep: FastSLAM without barcodes (``runs`` runs, seeds ``seed + 1000 k``), then
+    the smoother's association from them."""
     result, summary, context = run_mrclam_unknown(mrclam_path(dataset), robot, params, seed=seed)
-    smoothed = smooth_association(context["stream"], result)
+    started = time.perf_counter()
+    results = [result] + [run_unknown(context["stream"], params, np.random.default_rng(seed + 1000 * k))
+                          for k in range(1, runs)]
+    smoothed = smooth_association(context["stream"], results)
     part = summarize_smoother_association(smoothed, context["stream"], context["true_index"], context["dataset"],
                                           context["log"])
     oracle = summary["association_accuracy_oracle"]
@@ -112,7 +120,7 @@ def _run_smoother(dataset: int, robot: int, seed: int, params: AssociationParams
             "ratio_to_oracle": part["association_accuracy"] / oracle, "landmarks_spurious": part["landmarks_spurious"],
             "landmarks_in_map": part["landmarks_in_map"],
             "landmark_error_aligned_mean_m": part["landmark_error_aligned_mean_m"],
-            "path_rmse_aligned_m": part["path_rmse_aligned_m"], "seconds": part["seconds"]}
+            "path_rmse_aligned_m": part["path_rmse_aligned_m"], "seconds": time.perf_counter() - started}
 
 
 def smoother_table(runs: list[dict], robots) -> list[dict]:
@@ -133,7 +141,7 @@ def smoother_table(runs: list[dict], robots) -> list[dict]:
 
 def print_smoother_table(table: list[dict], seeds: int) -> None:
     """The ``--smoother`` table: one line per robot, ``*`` where a target is missed."""
-    print(f"Smoother association (smooth_association from each filter run), seeds 0-{seeds - 1}: medians")
+    print(f"Smoother association (smooth_association from the filter's runs), seeds 0-{seeds - 1}: medians")
     print(f"{'robot':<6} {'oracle':>7} {'filter':>7} {'smoother':>9} {'/oracle':>8} {'(range)':>13} {'spurious':>9} "
           f"{'aligned [m]':>12} {'path [m]':>9} {'seconds':>8}")
     for row in table:
@@ -157,9 +165,13 @@ def main(argv=None) -> int:
                          "filter and online ceiling")
     ap.add_argument("--smoother", action="store_true",
                     help="also the smoother's association from each filter run (second table, JSON 'smoother')")
+    ap.add_argument("--smoother-runs", type=int, default=1, metavar="K",
+                    help="with --smoother: start the smoother from K filter runs (default 1)")
     ap.add_argument("--out", type=Path, default=None,
                     help="JSON file (default results/association_mrclam.json, or association_mrclam_greedy.json)")
     args = ap.parse_args(argv)
+    if args.smoother_runs < 1:
+        ap.error(f"--smoother-runs must be >= 1, got {args.smoother_runs}")
     robots = ROBOTS + EXTRA
     params = AssociationParams(joint_compatibility=not args.greedy)
     name = "association_mrclam_greedy.json" if args.greedy else "association_mrclam.json"
@@ -213,7 +225,8 @@ def main(argv=None) -> int:
            "table": table, "runs": runs, "mean_ratio_to_oracle": {"mean": mean, "low": low, "high": high}}
     if args.smoother:
         try:
-            smoothed = run_sweep(_run_smoother, [(d, r, s, params) for d, r in robots for s in range(args.seeds)],
+            smoothed = run_sweep(_run_smoother, [(d, r, s, params, args.smoother_runs) for d, r in robots
+                                                 for s in range(args.seeds)],
                                  n_jobs=args.jobs, scheduler=args.scheduler)
         except SweepError as error:
             sys.exit(f"{ap.prog}: error: {error}")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -127,3 +129,16 @@ def test_the_association_solve_is_the_smoothers_solve(sim):
     a, it_a, cost_a = levenberg_marquardt_schur(problem, v, active, huber=1.0, max_iterations=50, tol=1e-12)
     b, it_b, cost_b = levenberg_marquardt(problem, v, active, huber=1.0, max_iterations=50, tol=1e-12)
     assert it_a > 1 and np.allclose(a, b, atol=1e-8) and abs(cost_a - cost_b) <= 1e-9 * cost_b
+
+
+def test_several_filter_runs_compete_by_cost(sim):
+    data, stream, filt = sim
+    other = run_unknown(stream, SIM_PARAMS, 1)
+    alone = [sa.smooth_association(stream, run) for run in (filt, other)]
+    both = sa.smooth_association(stream, [filt, other])
+    assert both.costs == alone[0].costs + alone[1].costs
+    assert both.cost == min(a.cost for a in alone)
+    assert np.array_equal(both.history, min(alone, key=lambda a: a.cost).history)
+    short = dataclasses.replace(other, t=other.t[:-1])
+    with pytest.raises(ValueError, match="the filter ran"):
+        sa.smooth_association(stream, [filt, short])

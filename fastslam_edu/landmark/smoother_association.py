@@ -396,30 +396,33 @@ def smooth_association(stream: EventStream, filter_result, params: FastSLAMParam
                        ) -> SmootherAssociationResult:
     """The associations, path and map re-decided with the whole log (module docstring), from the filter's run
     ``filter_result`` (:class:`~fastslam_edu.landmark.association.AssociationResult`) on the same anonymous
-    ``stream`` (``stream.landmark`` is never read). ``params``: the noise model (default: the filter's,
-    ``filter_result.params.filter``). Deterministic: no random step."""
+    ``stream`` (``stream.landmark`` is never read), or from several runs (a list: runs with different seeds; the
+    starts of every run, :func:`starts_from_filter`, compete by their final cost). ``params``: the noise model
+    (default: the first run's, ``params.filter``). Deterministic: no random step."""
     started = time.perf_counter()
-    if len(filter_result.t) != len(stream):
-        raise ValueError(f"smooth_association: the filter ran {len(filter_result.t)} steps but the stream has "
-                         f"{len(stream)}: run the filter on the same stream")
-    params = filter_result.params.filter if params is None else params
-    log = prepare_log(stream, params, x0, filter_result.params)
+    runs = list(filter_result) if isinstance(filter_result, (list, tuple)) else [filter_result]
+    for run in runs:
+        if len(run.t) != len(stream):
+            raise ValueError(f"smooth_association: the filter ran {len(run.t)} steps but the stream has "
+                             f"{len(stream)}: run the filter on the same stream")
+    params = runs[0].params.filter if params is None else params
+    log = prepare_log(stream, params, x0, runs[0].params)
     best, costs = None, []
-    starts = starts_from_filter(log, filter_result, settings.restarts, settings.grown_start)
-    for start in starts:
-        state = alternate(log, *start_of(log, start, starts, settings, filter_result.params), settings)
-        costs.append(state.cost)
-        if best is None or state.cost < best.cost:
-            best = state
+    for run in runs:
+        starts = starts_from_filter(log, run, settings.restarts, settings.grown_start)
+        for start in starts:
+            state = alternate(log, *start_of(log, start, starts, settings, run.params), settings)
+            costs.append(state.cost)
+            if best is None or state.cost < best.cost:
+                best = state
     N = len(best.landmarks)
-    steps = np.arange(len(stream))
-    pose_mean = poses_between(steps, log.keys, best.poses, log.path)
+    pose_mean = poses_between(np.arange(len(stream)), log.keys, best.poses, log.path)
     return SmootherAssociationResult(
         t=stream.t[log.keys], steps=log.keys, poses=best.poses, pose_mean=pose_mean, landmarks=best.landmarks,
-        landmarks_cov=best.cov, landmark_ident=np.arange(N), landmark_seen=np.bincount(best.labels[best.labels >= 0],
-                                                                                       minlength=N),
-        history=best.labels, cost=best.cost, costs=costs, rounds=best.rounds, loop_closures=best.loops,
-        outliers=int(np.sum(best.labels < 0)), seconds=time.perf_counter() - started)
+        landmarks_cov=best.cov, landmark_ident=np.arange(N),
+        landmark_seen=np.bincount(best.labels[best.labels >= 0], minlength=N), history=best.labels, cost=best.cost,
+        costs=costs, rounds=best.rounds, loop_closures=best.loops, outliers=int(np.sum(best.labels < 0)),
+        seconds=time.perf_counter() - started)
 
 
 __all__ = ["OUTLIER", "INFEASIBLE", "SightingLog", "prepare_log", "sighting_poses", "SmootherAssociationParams",
