@@ -20,7 +20,7 @@ from fastslam_edu.evaluation.metrics import landmark_errors_aligned
 from fastslam_edu.landmark.association import associate_particle, choose_landmarks, run_unknown
 from fastslam_edu.landmark.association_history import best_history, merge_copies, seen_together
 from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
-from fastslam_edu.landmark.association_params import AssociationParams, initial_particles
+from fastslam_edu.landmark.association_params import INDEPENDENT, JOINT, AssociationParams, initial_particles
 from fastslam_edu.landmark.joint_compatibility import N_PAIR_SLOTS, joint_loglik, pair_information
 from fastslam_edu.landmark.landmark_existence import existence_log_odds, retire_landmarks
 from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
@@ -32,7 +32,7 @@ R = np.diag([0.05**2, 0.02**2])
 RULES = AssociationParams(filter=SIM_FILTER.replace(measurement_correlation_s=None), new_landmark_chi2=16.0,
                           fov=0.5, min_range=0.3, max_range=5.0, n_confirm=5, detection_probability=0.3,
                           clutter_probability=0.05, drift_xy=0.0, drift_theta=0.0,
-                          joint_compatibility=False).rules()  # the greedy pairing; the joint rule's tests turn it on
+                          association="greedy").rules()  # the greedy pairing; the joint rule's tests turn it on
 
 
 #: The filter told the simulator's camera: ranges up to 5 m, bearings within ±π/3.
@@ -163,7 +163,7 @@ def test_mutual_exclusion_within_an_instant():
     out, _ = sight(P, [(2.0, 0.0), (2.05, 0.02)])
     assert out[0] == 100 and out[1] == 7 and P.n[0] == 2
     P = one_particle([(2.0, 0.0)])
-    out, _ = sight(P, [(2.0, 0.0), (2.05, 0.02)], RULES._replace(exclusive=False))
+    out, _ = sight(P, [(2.0, 0.0), (2.05, 0.02)], RULES._replace(association=INDEPENDENT))
     assert out.tolist() == [100, 100] and P.n[0] == 1
 
 
@@ -210,7 +210,7 @@ def test_joint_assignment_most_likely_first():
     slot, ll = choose_landmarks(P, 0, P.poses[0], z, np.repeat(R_wide[None], 2, axis=0), np.zeros((3, 3)), 1.0, RULES)
     assert slot.tolist() == [0, 1] and np.all(np.isfinite(ll))
     slot, _ = choose_landmarks(P, 0, P.poses[0], z, np.repeat(R_wide[None], 2, axis=0), np.zeros((3, 3)), 1.0,
-                               RULES._replace(exclusive=False))
+                               RULES._replace(association=INDEPENDENT))
     assert slot.tolist() == [1, 1]
 
 
@@ -275,7 +275,7 @@ def test_joint_compatibility_undoes_a_common_rotation():
     Rs = np.repeat(R[None], 2, axis=0)
     P = one_particle(landmarks)
     greedy, _ = choose_landmarks(P, 0, P.poses[0], z, Rs, np.zeros((3, 3)), 100.0, rules)
-    joint, ll = choose_landmarks(P, 0, P.poses[0], z, Rs, np.zeros((3, 3)), 100.0, rules._replace(joint=True))
+    joint, ll = choose_landmarks(P, 0, P.poses[0], z, Rs, np.zeros((3, 3)), 100.0, rules._replace(association=JOINT))
     assert greedy.tolist() == [1, 0]
     assert joint.tolist() == [0, 1]
     for i in range(2):  # each sighting keeps its own log-likelihood for the weight
@@ -286,7 +286,7 @@ def test_joint_compatibility_undoes_a_common_rotation():
 def test_joint_compatibility_a_far_sighting_is_new():
     """A sighting that fits no landmark's gate is new under joint compatibility too, and a landmark is never given
     two sightings of one instant."""
-    rules = RULES._replace(joint=True)
+    rules = RULES._replace(association=JOINT)
     P = one_particle([(2.0, 0.0)])
     out, _ = sight(P, [(2.0, 0.0), (2.0, 1.0)], rules)
     assert out.tolist() == [100, 7] and P.n[0] == 2
@@ -578,11 +578,11 @@ def test_cli_unknown_correspondences(sim_folder, tmp_path, capsys):
     assert main(["run", "--data", str(sim_folder), "--robot", "1", "--particles", "20", "--quiet", "--correspondences",
                  "unknown", "--proposal", "fastslam2", "--json", str(two)]) == 0
     assert json.loads(two.read_text())["params"]["filter"]["proposal"] == "fastslam2"
-    assert json.loads(two.read_text())["params"]["joint_compatibility"] is True  # the default rule
+    assert json.loads(two.read_text())["params"]["association"] == "joint"  # the default rule
     greedy = tmp_path / "greedy.json"
     assert main(["run", "--data", str(sim_folder), "--robot", "1", "--particles", "20", "--quiet", "--correspondences",
                  "unknown", "--association", "greedy", "--json", str(greedy)]) == 0
-    assert json.loads(greedy.read_text())["params"]["joint_compatibility"] is False
+    assert json.loads(greedy.read_text())["params"]["association"] == "greedy"
     for refused in (["--filter", "ekf", "--correspondences", "unknown"], []):  # EKF-SLAM's, or known barcodes
         assert main(["run", "--data", str(sim_folder), "--robot", "1", "--quiet", "--association", "joint",
                      *refused]) != 0
@@ -610,10 +610,10 @@ assert not hasattr(association.choose_landmarks, "py_func"), "numba compiled: NU
 data = simulate_dataset(2, duration=20.0)
 stream = event_stream(data.robots[1], data.landmark_subjects)
 out = {{}}
-for proposal, joint in (("motion", False), ("fastslam2", False), ("motion", True)):
-    p = SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal), joint_compatibility=joint)
+for proposal, rule in (("motion", "greedy"), ("fastslam2", "greedy"), ("motion", "joint")):
+    p = SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal), association=rule)
     r = association.run_unknown(stream, p, 3)
-    name = proposal + ("_joint" if joint else "")
+    name = proposal + "_" + rule
     out[name + "_history"], out[name + "_pose"] = r.history, r.pose_mean
 np.savez({out!r}, **out)
 """
@@ -633,10 +633,10 @@ def test_unknown_correspondences_run_as_plain_python_with_the_same_numbers(tmp_p
     plain = np.load(out)
     data = simulate_dataset(2, duration=20.0)
     stream = event_stream(data.robots[1], data.landmark_subjects)
-    for proposal, joint in (("motion", False), ("fastslam2", False), ("motion", True)):
-        p = SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal), joint_compatibility=joint)
+    for proposal, rule in (("motion", "greedy"), ("fastslam2", "greedy"), ("motion", "joint")):
+        p = SIM_PARAMS.replace(filter=SIM_FILTER.replace(n_particles=8, proposal=proposal), association=rule)
         r = run_unknown(stream, p, 3)
-        name = proposal + ("_joint" if joint else "")
+        name = proposal + "_" + rule
         np.testing.assert_array_equal(plain[name + "_history"], r.history)
         np.testing.assert_allclose(plain[name + "_pose"], r.pose_mean, rtol=0, atol=1e-9)
 

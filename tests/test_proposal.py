@@ -108,7 +108,7 @@ def test_kalman_form_equals_the_information_form():
         x_bar, P, mu, Sigma, z = _case(rng)
         # with no perturbation and the sample at the prediction, the draw is the proposal's mean
         x, x_bar_new, P_new, loglik, _ = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None],
-                                                       z, R, np.zeros((1, 2)))
+                                                       z=z, R=R, eps=np.zeros((1, 2)))
         mu_x, Sigma_x, log_w = improved_pose_one(x_bar, P, mu, Sigma, z, R)
         np.testing.assert_allclose(x_bar_new[0], mu_x, atol=1e-10)
         np.testing.assert_allclose(x[0], [mu_x[0], mu_x[1], wrap_angle(mu_x[2])], atol=1e-10)
@@ -122,8 +122,8 @@ def test_a_sighting_never_widens_the_pose_gaussian(seed):
     """For any particle: Σ_x is symmetric positive definite, P − Σ_x is positive semi-definite (information
     only adds), and the Kalman form equals the information form."""
     x_bar, P, mu, Sigma, z = _case(np.random.default_rng(seed))
-    _, x_bar_new, P_new, loglik, _ = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None], z, R,
-                                                   np.zeros((1, 2)))
+    _, x_bar_new, P_new, loglik, _ = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None], z=z, R=R,
+                                                   eps=np.zeros((1, 2)))
     mu_x, Sigma_x, log_w = improved_pose_one(x_bar, P, mu, Sigma, z, R)
     np.testing.assert_allclose(P_new[0], P_new[0].T, atol=0)
     assert np.linalg.eigvalsh(P_new[0]).min() > 0
@@ -143,8 +143,8 @@ def test_kalman_form_equals_the_information_form_across_the_bearing_cut():
     z = range_bearing(x_bar, mu) + [0.01, 0.02]
     z[1] = wrap_angle(z[1])  # a sensor reports bearings in (−π, π]
     assert np.sign(z[1]) != np.sign(range_bearing(x_bar, mu)[1])  # the case straddles the cut
-    x, x_bar_new, _, loglik, d2 = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None], z, R,
-                                                np.zeros((1, 2)))
+    x, x_bar_new, _, loglik, d2 = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None], z=z, R=R,
+                                                eps=np.zeros((1, 2)))
     mu_x, _, log_w = improved_pose_one(x_bar, P, mu, Sigma, z, R)
     np.testing.assert_allclose(x_bar_new[0], mu_x, atol=1e-10)
     np.testing.assert_allclose(x[0], [mu_x[0], mu_x[1], wrap_angle(mu_x[2])], atol=1e-10)
@@ -167,7 +167,7 @@ def test_the_perturbation_has_the_innovation_covariance_when_it_is_correlated():
     z = range_bearing(x_bar, mu) + [0.02, -0.01]
     stack = lambda a: np.broadcast_to(a, (3,) + a.shape)  # noqa: E731
     eps = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    x, *_ = improved_pose(stack(x_bar), stack(x_bar), stack(P), stack(mu), stack(Sigma), z, Rs, eps)
+    x, *_ = improved_pose(stack(x_bar), stack(x_bar), stack(P), stack(mu), stack(Sigma), z=z, R=Rs, eps=eps)
     D = (x[1:] - x[0]).T  # (3, 2)
     Q = H @ Sigma @ H.T + Rs
     assert abs(Q[0, 1]) / np.sqrt(Q[0, 0] * Q[1, 1]) > 0.5  # the case is correlated
@@ -187,7 +187,8 @@ def test_the_perturbed_observation_draws_the_proposal():
     n = 40_000
     x_hat = x_bar + rng.standard_normal((n, 3)) @ np.linalg.cholesky(P).T
     stack = lambda a: np.broadcast_to(a, (n,) + a.shape)  # noqa: E731
-    x, *_ = improved_pose(x_hat, stack(x_bar), stack(P), stack(mu), stack(Sigma), z, R, rng.standard_normal((n, 2)))
+    x, *_ = improved_pose(x_hat, stack(x_bar), stack(P), stack(mu), stack(Sigma), z=z, R=R,
+                          eps=rng.standard_normal((n, 2)))
     mu_x, Sigma_x, _ = improved_pose_one(x_bar, P, mu, Sigma, z, R)
     se = np.sqrt(np.diag(Sigma_x) / n)
     assert np.all(np.abs(x.mean(axis=0) - mu_x) < 4 * se + 1e-4)

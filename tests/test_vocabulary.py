@@ -35,9 +35,7 @@ KNOWN_DUPLICATES: set[str] = {
 #: Modules whose docstrings still give landmark shapes with K (being edited by others in issue 30).
 KNOWN_K_SHAPES: set[str] = {
     "app/experiment.py",
-    "landmark/evidence.py",
     "landmark/fastslam.py",
-    "landmark/initial_pose.py",
     "landmark/particle_set.py",
     "landmark/step_records.py",
 }
@@ -129,3 +127,54 @@ def test_no_landmark_shape_with_k():
 @pytest.mark.parametrize("path", sorted(KNOWN_K_SHAPES))
 def test_every_known_k_shape_is_still_there(path):
     assert k_shapes(modules()[path]), f"{path} has no (K, ...) shape now: drop it from KNOWN_K_SHAPES"
+
+
+# ---------------------------------------------------------------- one three-way choice, one name
+
+
+def test_association_is_one_three_way_choice():
+    """``AssociationParams.association`` ("joint" | "greedy" | "independent") replaced the two flags ``exclusive``
+    and ``joint_compatibility``, which encoded one choice in four combinations; the kernels' ``Rules`` carry it as
+    one code too, and a name that is not a rule is refused by name."""
+    import dataclasses
+
+    from fastslam_edu.landmark.association_params import ASSOCIATION_RULES, AssociationParams, Rules
+
+    names = {f.name for f in dataclasses.fields(AssociationParams)}
+    assert "association" in names and not names & {"exclusive", "joint_compatibility"}
+    assert not set(Rules._fields) & {"exclusive", "joint", "joint_compatibility"}
+    assert set(ASSOCIATION_RULES) == {"joint", "greedy", "independent"}
+    assert len(set(ASSOCIATION_RULES.values())) == 3  # three codes for three rules
+    assert AssociationParams().association == "joint"
+    for name, code in ASSOCIATION_RULES.items():
+        assert AssociationParams(association=name).rules().association == code
+    with pytest.raises(ValueError, match="'exclusive'"):
+        AssociationParams(association="exclusive")
+
+
+def test_the_cli_association_option_takes_the_three_rules():
+    from fastslam_edu.app.cli import build_parser
+    from fastslam_edu.landmark.association_params import ASSOCIATION_RULES
+
+    parser = build_parser()
+    base = ["run", "--data", ".", "--robot", "1", "--correspondences", "unknown"]
+    for name in ASSOCIATION_RULES:
+        assert parser.parse_args([*base, "--association", name]).association == name
+    assert parser.parse_args(base).association is None  # AssociationParams' default then
+    with pytest.raises(SystemExit):
+        parser.parse_args([*base, "--association", "exclusive"])
+
+
+def test_one_name_for_the_tempering_exponent():
+    """β is the tempering exponent: ``tempering_exponents`` the compiled kernel (writes β), ``tempering_exponents_of``
+    its teaching form (returns β), the same numbers; ``evidence_fractions`` is only an alias of the teaching form."""
+    import numpy as np
+
+    from fastslam_edu.landmark import evidence
+
+    assert evidence.evidence_fractions is evidence.tempering_exponents_of
+    last = np.array([10.0, -np.inf, 18.0])
+    beta = np.empty(3)
+    evidence.tempering_exponents(19.0, np.array([0, 1, 2]), last.copy(), 4.0, beta)
+    np.testing.assert_array_equal(evidence.tempering_exponents_of(19.0, [0, 1, 2], last.copy(), 4.0), beta)
+    np.testing.assert_array_equal(beta, [1.0, 1.0, 0.25])  # min(1, Δt/τ): Δt 9 s, never seen, 1 s

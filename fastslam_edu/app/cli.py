@@ -88,11 +88,11 @@ def _add_run_options(run: argparse.ArgumentParser) -> None:
                           "per particle (fastslam_edu.landmark.association), EKF-SLAM by nearest neighbour (--filter "
                           "ekf), every sighting given without its barcode (other robots and misread barcodes "
                           "included); the barcodes only score the associations")
-    run.add_argument("--association", choices=("joint", "greedy"), default=None,
-                     help="with --correspondences unknown, how FastSLAM decides the sightings of one instant: joint "
-                          "(default): as a whole, their innovations correlated by the pose error they share; greedy: "
-                          "the most likely pair first, each sighting and landmark once (AssociationParams."
-                          "joint_compatibility)")
+    run.add_argument("--association", choices=("joint", "greedy", "independent"), default=None,
+                     help="with --correspondences unknown, how FastSLAM decides the sightings of one instant "
+                          "(AssociationParams.association): joint (default): as a whole, their innovations correlated "
+                          "by the pose error they share; greedy: the most likely pair first, each sighting and "
+                          "landmark once; independent: each sighting alone")
     run.add_argument("--mode", choices=MODES, default="slam")
     run.add_argument("--proposal", choices=PROPOSALS, default="motion",
                      help="motion: FastSLAM 1.0 (default); fastslam2: FastSLAM 2.0's proposal")
@@ -272,7 +272,7 @@ def cmd_run_unknown(args) -> int:
     f = defaults.filter
     params = defaults.replace(filter=f.replace(n_particles=f.n_particles if args.particles is None else args.particles,
                                                resampler=args.resampler or f.resampler, proposal=args.proposal),
-                              joint_compatibility=(args.association or "joint") == "joint")
+                              association=args.association or defaults.association)
     result, summary, ctx = run_mrclam_unknown(args.data, args.robot, params, args.seed, rate=args.rate, x0=args.x0,
                                               groundtruth_file=args.groundtruth, audit=not args.no_audit)
     summary["filter"] = "fastslam"

@@ -281,10 +281,8 @@ def robot_sightings(raw: pd.DataFrame, barcodes: dict[int, int], robot: int | No
 
     Parameters
     ----------
-    raw : DataFrame
-        Columns ``time, barcode, range, bearing`` (:func:`read_measurements`).
-    barcodes : dict[int, int]
-        Barcode -> subject (:func:`read_barcodes`).
+    raw, barcodes : DataFrame, dict[int, int]
+        The sightings and the barcode table, as for :func:`landmark_sightings`.
     robot : int, optional
         The observer's subject number: a sighting of itself is an error.
     robots : iterable of int

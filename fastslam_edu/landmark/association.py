@@ -13,13 +13,12 @@ sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
    :math:`\\log p_0`. Sightings from ``min_range`` to ``new_max_range`` start landmarks; negative
    evidence checks them once they are within ``max_range``.
 2. **Mutual exclusion**: within one camera frame two sightings are two different
-   things. **Joint compatibility** (``joint_compatibility``, the default;
+   things. ``association`` chooses one of three rules. ``"joint"`` (joint compatibility, the default;
    :func:`~fastslam_edu.landmark.joint_compatibility.joint_slots`)
    decides the instant as a whole: every hypothesis (each sighting a landmark or new, no
    landmark twice) is scored by the joint Gaussian of its innovations, correlated by the
-   pose error the sightings share. Without it, the pairs (sighting, landmark) of the instant
-   are taken most likely first, each sighting and each landmark once (``exclusive``, the
-   greedy pairing), or each sighting alone.
+   pose error the sightings share. ``"greedy"`` takes the pairs (sighting, landmark) of the instant
+   most likely first, each sighting and each landmark once; ``"independent"`` decides each sighting alone.
 3. **Negative evidence** (:func:`~fastslam_edu.landmark.landmark_existence.negative_evidence`): a landmark the particle
    expects to see (inside the camera's field of view and range) at an instant
    when something is seen, but which no sighting of that instant was assigned
@@ -96,7 +95,8 @@ from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association_history import best_history, merge_copies
 from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
-from fastslam_edu.landmark.association_params import AssociationParams, MapParticles, initial_particles
+from fastslam_edu.landmark.association_params import (INDEPENDENT, JOINT, AssociationParams, MapParticles,
+                                                      initial_particles)
 from fastslam_edu.landmark.fastslam_step import (copy_order, copy_row, is_increasing, motion_prediction_of,
                                                  move_through_segment, normalise_weights, pose_covariance,
                                                  resampling_indices, segment_normals, weighted_mean_pose)
@@ -119,13 +119,13 @@ def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
 
     Every pair ``(i, k)`` with :math:`d^2_{ik} \\le d_0^2` is a candidate, scored by its log-likelihood
     :math:`\\ell_{ik}` (:func:`association_loglik`); a sighting with no candidate is new (:math:`p_0` wins).
-    With mutual exclusion (``rules.exclusive``) the pairs are taken greedily, the most likely first, each
-    sighting and each landmark at most once: an approximation of the most likely joint association of
-    the instant, so that a landmark is not taken by the sighting of its neighbour just because that
-    sighting came first in the file. Without, each sighting takes its most likely landmark. With joint
-    compatibility (``rules.joint``, two sightings or more) the instant is decided as a whole
-    (:func:`joint_slots`), a sighting with candidates may then be new; each sighting keeps its own
-    :math:`\\ell_{ik}` as its log-likelihood.
+    ``rules.association`` (:data:`~fastslam_edu.landmark.association_params.ASSOCIATION_RULES`): ``GREEDY``
+    takes the pairs greedily, the most likely first, each sighting and each landmark at most once (mutual
+    exclusion): an approximation of the most likely joint association of the instant, so that a landmark is not
+    taken by the sighting of its neighbour just because that sighting came first in the file. ``INDEPENDENT``:
+    each sighting takes its most likely landmark. ``JOINT`` (two sightings or more) decides the instant as a whole
+    (:func:`joint_slots`; when it gives up, the greedy pairing), a sighting with candidates may then be new; each
+    sighting keeps its own :math:`\\ell_{ik}` as its log-likelihood.
     """
     n, K = z.shape[0], P.n[m]
     ll = np.full((n, K), -math.inf)
@@ -137,12 +137,12 @@ def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
                 ll[i, k] = lik
     slot = np.full(n, -1, dtype=np.int64)
     chosen = np.full(n, -math.inf)
-    if rules.joint and n > 1 and K > 0 and joint_slots(P, m, pose, cloud, (z, R, t), rules, ll, slot):
+    if rules.association == JOINT and n > 1 and K > 0 and joint_slots(P, m, pose, cloud, (z, R, t), rules, ll, slot):
         for i in range(n):
             if slot[i] >= 0:
                 chosen[i] = ll[i, slot[i]]
         return slot, chosen
-    if not rules.exclusive:
+    if rules.association == INDEPENDENT:
         for i in range(n):
             if K > 0 and ll[i].max() > -math.inf:
                 slot[i] = np.argmax(ll[i])
@@ -198,8 +198,10 @@ def apply_associations(P, m, instant, chosen, rules, next_ident, out):
     """Update, weight and negative evidence for particle ``m`` once ``chosen = (slot (n,), loglik (n,))`` is decided
     (:func:`choose_landmarks`); ``out`` (n,) receives the identity of the landmark each sighting went to.
 
-    An assigned sighting updates its landmark's EKF and multiplies the weight by its likelihood (tempered
-    by :math:`\\beta = \\min(1, \\Delta t/\\tau)`); a provisional landmark's, or a new one's, by :math:`p_0`.
+    An assigned sighting updates its landmark's EKF (lines 12–17 of table 13.1) and multiplies the weight by its
+    likelihood (line 18, tempered by the exponent :math:`\\beta = \\min(1, \\Delta t/\\tau)`); a provisional
+    landmark's, or a new one's (lines 7–9), by :math:`p_0` (line 10). Line numbers: *Probabilistic Robotics*, 2005
+    printing, table 13.1 (FastSLAM 1.0, known correspondences).
     """
     z, R, t = instant
     slot, lls = chosen

@@ -16,6 +16,11 @@ from fastslam_edu.core.params import Params
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 from fastslam_edu.landmark.step_records import RESAMPLER_CODES
 
+#: The three rules of deciding one instant's sightings (``AssociationParams.association``), as the kernels take them
+#: (``Rules.association``): each sighting alone, the greedy pairing (mutual exclusion), jointly.
+INDEPENDENT, GREEDY, JOINT = 0, 1, 2
+ASSOCIATION_RULES = {"independent": INDEPENDENT, "greedy": GREEDY, "joint": JOINT}
+
 
 @dataclass(frozen=True, eq=False)
 class AssociationParams(Params):
@@ -29,8 +34,14 @@ class AssociationParams(Params):
         no landmark explains becomes a new landmark).
     new_landmark_chi2 : float
         :math:`d_0^2` of the new-landmark likelihood :math:`p_0` (module docstring).
-    exclusive : bool
-        Mutual exclusion: one landmark per sighting within one instant.
+    association : str
+        How the sightings of one instant are decided (:data:`ASSOCIATION_RULES`). ``"joint"`` (default): jointly,
+        their innovations correlated by the pose error they share (:func:`joint_slots`; above
+        ``JOINT_MAX_HYPOTHESES`` hypotheses it falls back to the greedy pairing). ``"greedy"``: the pairs
+        (sighting, landmark) most likely first, each sighting and each landmark once (mutual exclusion).
+        ``"independent"``: each sighting alone, its most likely landmark. On MR.CLAM's seven robots with
+        groundtruth the joint rule associates more sightings rightly than the greedy pairing, at 1.0–1.5 times its
+        filter time (``benchmarks/association_mrclam.py`` and its ``--greedy``; figures in ``benchmarks/results/``).
     max_landmarks : int
         Landmarks a particle can hold (a sighting that would exceed it is not mapped).
     fov : float
@@ -75,17 +86,11 @@ class AssociationParams(Params):
     merge_radius : float
         In the final map, a landmark within this distance [m] of an older one never sighted in the same instant
         is merged into it (:func:`merge_copies`; 0: none).
-    joint_compatibility : bool
-        The sightings of one instant are associated jointly, their innovations correlated by the pose error they
-        share (:func:`joint_slots`; default), instead of one by one (False: ``exclusive``'s greedy pairing, or each
-        alone). On MR.CLAM's seven robots with groundtruth it associates more sightings rightly than the greedy
-        pairing (over seeds 0–39, by a difference whose 95 % bootstrap interval stays above zero), at 1.0–1.5 times
-        its filter time (``benchmarks/association_mrclam.py`` and its ``--greedy``).
     """
 
     filter: FastSLAMParams = field(default_factory=FastSLAMParams)
     new_landmark_chi2: float = 16.0
-    exclusive: bool = True
+    association: str = "joint"
     max_landmarks: int = 128
     fov: float = 0.45
     min_range: float = 0.5
@@ -104,7 +109,6 @@ class AssociationParams(Params):
     log_odds_cap_sightings: float = 5.0
     inherit_radius: float = 1.0
     merge_radius: float = 0.5
-    joint_compatibility: bool = True
 
     def __post_init__(self):
         if not isinstance(self.filter, FastSLAMParams):
@@ -113,6 +117,8 @@ class AssociationParams(Params):
             raise ValueError("unknown correspondences: mode 'slam' only")
         if self.filter.resampler not in RESAMPLER_CODES:
             raise ValueError(f"resampler must be one of {sorted(RESAMPLER_CODES)}, got {self.filter.resampler!r}")
+        if self.association not in ASSOCIATION_RULES:
+            raise ValueError(f"association must be one of {list(ASSOCIATION_RULES)}, got {self.association!r}")
         if not (math.isfinite(self.new_landmark_chi2) and self.new_landmark_chi2 > 0):
             raise ValueError(f"new_landmark_chi2 must be > 0, got {self.new_landmark_chi2!r}")
         if int(self.max_landmarks) < 1 or int(self.n_confirm) < 1:
@@ -131,9 +137,9 @@ class AssociationParams(Params):
         """The settings as the compiled kernels take them (:class:`Rules`)."""
         tau = self.filter.measurement_correlation_s
         log_odds_seen = math.log(self.detection_probability / self.clutter_probability)  # log(p_D / p_F)
-        return Rules(new_chi2=float(self.new_landmark_chi2), exclusive=bool(self.exclusive), fov=float(self.fov),
-                     min_range=float(self.min_range), max_range=float(self.max_range), n_confirm=int(self.n_confirm),
-                     log_odds_seen=log_odds_seen,
+        return Rules(new_chi2=float(self.new_landmark_chi2), association=ASSOCIATION_RULES[self.association],
+                     fov=float(self.fov), min_range=float(self.min_range), max_range=float(self.max_range),
+                     n_confirm=int(self.n_confirm), log_odds_seen=log_odds_seen,
                      log_odds_missed=math.log((1.0 - self.detection_probability) / (1.0 - self.clutter_probability)),
                      tau=0.0 if tau is None else float(tau), pose_scale=float(self.pose_uncertainty),
                      provisional_as_new=bool(self.provisional_as_new), drift_xy=float(self.drift_xy),
@@ -141,7 +147,7 @@ class AssociationParams(Params):
                      drift_cap_s=float(self.drift_cap_s), min_count=int(self.proposal_min_count),
                      new_max_range=float(self.new_max_range),
                      log_odds_cap=float(self.log_odds_cap_sightings) * log_odds_seen,
-                     inherit_radius=float(self.inherit_radius), joint=bool(self.joint_compatibility))
+                     inherit_radius=float(self.inherit_radius))
 
 
 class MapParticles(NamedTuple):
@@ -184,7 +190,7 @@ class Rules(NamedTuple):
     """The association settings as the kernels take them (:class:`AssociationParams`)."""
 
     new_chi2: float
-    exclusive: bool
+    association: int
     fov: float
     min_range: float
     max_range: float
@@ -202,7 +208,7 @@ class Rules(NamedTuple):
     new_max_range: float
     log_odds_cap: float
     inherit_radius: float
-    joint: bool
 
 
-__all__ = ["AssociationParams", "MapParticles", "initial_particles", "Rules"]
+__all__ = ["ASSOCIATION_RULES", "INDEPENDENT", "GREEDY", "JOINT", "AssociationParams", "MapParticles",
+           "initial_particles", "Rules"]

@@ -1,9 +1,14 @@
-"""The fraction of independent evidence a sighting carries (β), for sightings of one landmark close in time.
+"""The tempering exponent β: the fraction of independent evidence a sighting carries, for sightings of one landmark
+close in time.
 
 Readings of one landmark within a second are near-copies whose error changes only as the viewpoint does: counted as
 independent, they make the filter several times too confident. Each sighting's log-likelihood is weighted by
 :math:`\\beta = \\min(1, \\Delta t / \\tau)`
 (:attr:`fastslam_edu.landmark.fastslam.FastSLAMParams.measurement_correlation_s`).
+
+One name for one concept: the tempering exponent β. :func:`tempering_exponents` is the compiled kernel the filter
+runs (it writes β into an array it is given); :func:`tempering_exponents_of` is its teaching form (it returns β).
+``evidence_fractions`` is the old name of the teaching form, kept for callers not yet moved.
 """
 
 from __future__ import annotations
@@ -14,7 +19,8 @@ from numba import njit
 
 @njit(cache=True)
 def tempering_exponents(t, j, last_seen, tau, beta):
-    """``beta[i] = min(1, (t - last_seen[j[i]]) / tau)``, then ``last_seen[j] = t``; ``tau <= 0``: all 1 (textbook)."""
+    """Tempering exponents ``beta[i] = min(1, (t - last_seen[j[i]]) / tau)`` (n,) of the sightings of landmarks
+    ``j`` (n,) at time ``t`` [s], then ``last_seen[j] = t``; ``tau`` [s] <= 0: all 1 (the textbook)."""
     if tau <= 0.0:
         beta[:] = 1.0
         return
@@ -24,11 +30,11 @@ def tempering_exponents(t, j, last_seen, tau, beta):
         last_seen[j[i]] = t
 
 
-def evidence_fractions(t, landmarks, last_seen, tau: float | None) -> np.ndarray:
-    """Exponents :math:`\\beta = \\min(1, \\Delta t / \\tau)` of the likelihoods of sightings at time ``t``.
+def tempering_exponents_of(t, landmarks, last_seen, tau: float | None) -> np.ndarray:
+    """Tempering exponents :math:`\\beta = \\min(1, \\Delta t / \\tau)` of the likelihoods of sightings at time ``t``.
 
     :math:`\\Delta t` is the time since the previous sighting of the same landmark
-    (``last_seen`` (K,) [s], ``-inf`` if none; updated in place to ``t``).
+    (``last_seen`` (N,) [s], ``-inf`` if none; updated in place to ``t``).
 
     Why: FastSLAM multiplies the likelihoods of all sightings as if their errors
     were independent. MR.CLAM's are not: a landmark's range and bearing errors
@@ -52,4 +58,8 @@ def evidence_fractions(t, landmarks, last_seen, tau: float | None) -> np.ndarray
     return beta
 
 
-__all__ = ["tempering_exponents", "evidence_fractions"]
+#: The old name of :func:`tempering_exponents_of` (``landmark/fastslam.py``, ``landmark/robot_sightings.py``,
+#: ``benchmarks/textbook_loop.py`` and ``tests/test_fastslam.py`` still call it by it).
+evidence_fractions = tempering_exponents_of
+
+__all__ = ["tempering_exponents", "tempering_exponents_of", "evidence_fractions"]

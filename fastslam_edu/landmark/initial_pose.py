@@ -92,9 +92,9 @@ def initial_pose_from_landmarks(log: RobotLog, landmarks: np.ndarray, landmark_s
     ----------
     log : RobotLog
         Odometry and measurements (groundtruth not needed).
-    landmarks : array_like, shape (K, 2)
+    landmarks : array_like, shape (N, 2)
         Surveyed landmark positions [m], in the order of ``landmark_subjects``.
-    landmark_subjects : array_like of int, shape (K,)
+    landmark_subjects : array_like of int, shape (N,)
         Subject number of each row of ``landmarks``.
     window_s, max_window_s : float
         Sightings of the first ``window_s`` seconds are used; the window is

@@ -15,7 +15,7 @@ from fastslam_edu.core.ekf import ekf_initialise, expected_measurement
 
 @njit(cache=True)
 def add_landmark(P, m, z, R, ident, t):
-    """A new landmark in particle ``m`` from sighting ``z`` (lines 6–8 of table 13.1); its slot, or -1 if full."""
+    """A new landmark in particle ``m`` from sighting ``z`` (lines 7–9 of table 13.1); its slot, or -1 if full."""
     k = P.n[m]
     if k >= P.mu.shape[1]:
         return -1

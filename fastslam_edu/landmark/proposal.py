@@ -221,8 +221,11 @@ def _improved_poses(x_hat, x_bar, P, mu, Sigma, z, R, eps):
     return d2, loglik
 
 
-def improved_pose(x_hat, x_bar, P, mu, Sigma, z, R, eps):
+def improved_pose(x_hat, x_bar, P, mu, Sigma, *, z, R, eps):
     """The proposal for one sighting, for n particles (:func:`improved_pose_into` for each).
+
+    The particles' poses and maps are given by position, the sighting and the draws by name:
+    ``improved_pose(x_hat, x_bar, P, mu, Sigma, z=z, R=R, eps=eps)``.
 
     Parameters
     ----------
