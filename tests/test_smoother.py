@@ -18,7 +18,7 @@ from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.landmark.smoother import (BEST_ESTIMATE, CALIBRATION_NAMES, ODOMETRY_CALIBRATION, PRIOR_STD,
                                             SolverSettings, smooth)
 from fastslam_edu.landmark.smoother_factors import (OdometryModel, dead_reckon_stream, lagged_commands,
-                                                    keyframe_steps, measurement_residuals, odometry_factors,
+                                                    keyframe_steps, sighting_residuals, odometry_factors,
                                                     odometry_residuals, sighting_weights, whitening)
 from fastslam_edu.landmark.smoother_laplace import block_tridiagonal_inverse_diagonal
 from streams import path_rmse, simulate
@@ -55,10 +55,10 @@ def test_measurement_jacobians_match_finite_differences():
     m = x[:, :2] + rng.uniform(1, 4, size=(6, 1)) * np.stack([np.cos(rng.uniform(0, 6, 6)),
                                                               np.sin(rng.uniform(0, 6, 6))], axis=1)
     z = rng.normal(size=(6, 2)) * [0.1, 0.1] + [2.0, 0.0]
-    _, Jx, Jm = measurement_residuals(x, m, z)
+    _, Jx, Jm = sighting_residuals(x, m, z)
     for i in range(6):
-        nx = _numeric_jacobian(lambda p: measurement_residuals(p[None], m[i:i + 1], z[i:i + 1])[0][0], x[i])
-        nm = _numeric_jacobian(lambda q: measurement_residuals(x[i:i + 1], q[None], z[i:i + 1])[0][0], m[i])
+        nx = _numeric_jacobian(lambda p: sighting_residuals(p[None], m[i:i + 1], z[i:i + 1])[0][0], x[i])
+        nm = _numeric_jacobian(lambda q: sighting_residuals(x[i:i + 1], q[None], z[i:i + 1])[0][0], m[i])
         np.testing.assert_allclose(Jx[i], nx, atol=1e-6)
         np.testing.assert_allclose(Jm[i], nm, atol=1e-6)
 
