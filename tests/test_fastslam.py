@@ -959,3 +959,17 @@ def test_a_hook_sees_every_resampling_decision_and_the_parents_drawn():
     np.testing.assert_array_equal(plain.pose_mean, result.pose_mean)
     buggy = run_fastslam(stream, params, 3, hooks=[Parents(keep_weights=True)])
     assert np.abs(buggy.pose_mean - plain.pose_mean).max() > 1e-6
+
+
+@pytest.mark.parametrize("shape", [(1, 2, 1), (1, 2, 100), (7, 3, 5), (40, 2, 64)])
+def test_standard_normals_are_numpys_draws_particle_by_particle(shape):
+    """The compiled draw (L, k, M) holds ``rng.standard_normal((M, L, k))`` stored step by step, and leaves the
+    generator where numpy's draw leaves it (checked by the next number)."""
+    from fastslam_edu.landmark.fastslam_step import standard_normals
+
+    n_steps, k, m = shape
+    out = np.full(shape, np.nan)
+    rng, reference = np.random.default_rng(11), np.random.default_rng(11)
+    standard_normals(rng, out)
+    np.testing.assert_array_equal(out, reference.standard_normal((m, n_steps, k)).transpose(1, 2, 0))
+    assert rng.standard_normal() == reference.standard_normal()

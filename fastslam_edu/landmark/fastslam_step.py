@@ -198,10 +198,10 @@ def standard_normals(rng, out):
     (:func:`fastslam_edu.landmark.particle_set.draw_normals`).
     """
     n_steps, k, m_count = out.shape
-    flat = out.reshape(-1)
     for m in range(m_count):
-        for i in range(m, flat.shape[0], m_count):  # step by step, draw by draw
-            flat[i] = rng.standard_normal()
+        for t in range(n_steps):  # step by step, draw by draw
+            for d in range(k):
+                out[t, d, m] = rng.standard_normal()
 
 
 # ---------------------------------------------------------------- lines 5–17 for one particle, behind the gate
