@@ -973,3 +973,24 @@ def test_standard_normals_are_numpys_draws_particle_by_particle(shape):
     standard_normals(rng, out)
     np.testing.assert_array_equal(out, reference.standard_normal((m, n_steps, k)).transpose(1, 2, 0))
     assert rng.standard_normal() == reference.standard_normal()
+
+
+def test_the_progress_bar_counts_every_step_and_changes_nothing(monkeypatch):
+    """ProgressBar: served between compiled chunks (the Python loop is never entered), it counts every step once,
+    the run's numbers are those without it, and tqdm is imported when the bar is made, before the run's timer."""
+    from fastslam_edu.landmark.hooks import PROGRESS_CHUNK_STEPS, ProgressBar
+
+    _, _, stream = simulate(4, duration=8.0, outlier_prob=0.1)
+    monkeypatch.setattr(ProgressBar, "chunk_steps", max(1, len(stream) // 7))  # several chunks on a short log
+    params = FastSLAMParams(n_particles=12, motion_noise=SIM.odometry_noise)
+    bar = ProgressBar()
+    assert bar.tqdm is not None and bar.bar is None and PROGRESS_CHUNK_STEPS > 1
+
+    def no_python_loop(*args):
+        raise AssertionError("the progress bar sent the run to the step-by-step Python loop")
+
+    monkeypatch.setattr(fs, "run_python_loop", no_python_loop)
+    with_bar, without = run_fastslam(stream, params, 3, hooks=(bar,)), run_fastslam(stream, params, 3)
+    assert bar.bar.n == len(stream)
+    np.testing.assert_array_equal(with_bar.pose_mean, without.pose_mean)
+    np.testing.assert_array_equal(with_bar.particles.logw, without.particles.logw)
