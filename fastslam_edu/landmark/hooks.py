@@ -88,8 +88,11 @@ class ProgressBar(Hook):
     chunk_steps = PROGRESS_CHUNK_STEPS
 
     def __init__(self):
-        from tqdm.auto import tqdm  # here, before the run: importing tqdm takes 15-50 ms, not the filter's time
+        # here, before the run and its timer: importing tqdm (15-50 ms) and its first bar's lock (it imports
+        # multiprocessing, 3-4 ms) are not the filter's time
+        from tqdm.auto import tqdm
 
+        tqdm.get_lock()
         self.tqdm, self.bar = tqdm, None
 
     def after_step(self, run, s, e):
