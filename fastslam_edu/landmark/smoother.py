@@ -263,17 +263,31 @@ def _huber(r_m, c):
     return w, np.where(s <= c, 0.5 * s * s, c * s - 0.5 * c * c)
 
 
-def levenberg_marquardt(problem: _Problem, v, active, *, huber, max_iterations, tol):
-    """Minimise the (robust) cost over ``v``; returns ``(v, iterations, cost)``."""
+def robust_cost(problem: _Problem, v, active, huber):
+    """Cost :math:`\\tfrac12\\|r\\|^2` at ``v``, with the Huber loss on each sighting's :math:`\\|r_i\\|` (radius
+    ``huber``; None: plain least squares); returns ``(cost, r, J, w, rows)``: residuals, Jacobian, the sightings'
+    IRLS weights and their rows in ``r``."""
+    r, J, rows = problem.evaluate(v, active)
+    w, rho = _huber(r[rows].reshape(-1, 2), huber)
+    other = np.ones(len(r), dtype=bool)
+    other[rows] = False
+    return 0.5 * r[other] @ r[other] + rho.sum(), r, J, w, rows
 
-    def cost_of(v):
-        r, J, rows = problem.evaluate(v, active)
-        w, rho = _huber(r[rows].reshape(-1, 2), huber)
-        other = np.ones(len(r), dtype=bool)
-        other[rows] = False
-        return 0.5 * r[other] @ r[other] + rho.sum(), r, J, w, rows
 
-    cost, r, J, w, rows = cost_of(v)
+def sparse_lu_step(A_damped, g) -> np.ndarray:
+    """The damped Gauss–Newton step :math:`\\delta = -(A + \\mu\\,\\mathrm{diag}A)^{-1} g` by a sparse LU factorisation
+    (``A_damped`` sparse, fill-reducing ``ORDERING``)."""
+    return -splu(A_damped.tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0).solve(g)
+
+
+def levenberg_marquardt(problem: _Problem, v, active, *, huber, max_iterations, tol, damped_step=sparse_lu_step):
+    """Minimise the (robust) cost over ``v``; returns ``(v, iterations, cost)``.
+
+    Each iteration: the IRLS-weighted normal equations :math:`A = J^\\top W J`, :math:`g = J^\\top W r`, and the
+    step ``damped_step(A + mu diag A, g)`` (default :func:`sparse_lu_step`; one that returns None falls back to
+    it), accepted when it lowers the cost, else :math:`\\mu \\times 10`.
+    """
+    cost, r, J, w, rows = robust_cost(problem, v, active, huber)
     lam, it = 1e-4, 0
     for it in range(1, max_iterations + 1):
         sw = np.ones(len(r))  # IRLS: the Huber weights on the sightings' rows
@@ -283,8 +297,10 @@ def levenberg_marquardt(problem: _Problem, v, active, *, huber, max_iterations, 
         g = Jw.T @ (sw * r)
         D = sp.diags(A.diagonal())
         while True:
-            step = -splu((A + lam * D).tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0).solve(g)
-            new_cost, r_new, J_new, w_new, _ = cost_of(v + step)
+            step = damped_step(A + lam * D, g)
+            if step is None:
+                step = sparse_lu_step(A + lam * D, g)
+            new_cost, r_new, J_new, w_new, _ = robust_cost(problem, v + step, active, huber)
             if new_cost <= cost:
                 break
             lam *= 10.0

@@ -20,6 +20,8 @@ round of every start), so this step sets its time. Same steps, same stopping rul
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
@@ -65,54 +67,13 @@ def schur_step(A: sp.spmatrix, g: np.ndarray, n_pose_vars: int) -> np.ndarray | 
     return np.concatenate([d_p, d_l])
 
 
-def _robust_cost(problem, v, active, huber):
-    """Cost ½‖r‖² with the Huber loss on each sighting's ‖r_i‖ (radius ``huber``; None: none), residuals,
-    Jacobian, the sightings' IRLS weights and their rows."""
-    r, J, rows = problem.evaluate(v, active)
-    r_m = r[rows].reshape(-1, 2)
-    s = np.sqrt(np.sum(r_m * r_m, axis=1))
-    if huber is None:
-        w, rho = np.ones(len(s)), 0.5 * s * s
-    else:
-        w = np.where(s <= huber, 1.0, huber / np.maximum(s, 1e-300))
-        rho = np.where(s <= huber, 0.5 * s * s, huber * s - 0.5 * huber * huber)
-    other = np.ones(len(r), dtype=bool)
-    other[rows] = False
-    return 0.5 * r[other] @ r[other] + rho.sum(), r, J, w, rows
-
-
 def levenberg_marquardt_schur(problem, v, active, *, huber, max_iterations, tol):
     """:func:`fastslam_edu.landmark.smoother.levenberg_marquardt` with :func:`schur_step` for the damped step
     :math:`(A + \\mu\\,\\mathrm{diag} A)\\,\\delta = -g`; returns ``(v, iterations, cost)``."""
     if problem.n_extra:
         return levenberg_marquardt(problem, v, active, huber=huber, max_iterations=max_iterations, tol=tol)
-    P = 3 * problem.n_poses
-    cost, r, J, w, rows = _robust_cost(problem, v, active, huber)
-    lam, it = 1e-4, 0
-    for it in range(1, max_iterations + 1):
-        sw = np.ones(len(r))  # IRLS: the Huber weights on the sightings' rows
-        sw[rows] = np.repeat(np.sqrt(w), 2)
-        Jw = sp.diags(sw) @ J
-        A = (Jw.T @ Jw).tocsc()
-        g = Jw.T @ (sw * r)
-        D = sp.diags(A.diagonal())
-        while True:
-            step = schur_step(A + lam * D, g, P)
-            if step is None:
-                return levenberg_marquardt(problem, v, active, huber=huber, max_iterations=max_iterations, tol=tol)
-            new_cost, r_new, J_new, w_new, _ = _robust_cost(problem, v + step, active, huber)
-            if new_cost <= cost:
-                break
-            lam *= 10.0
-            if lam > 1e12:
-                return v, it, cost
-        v = v + step
-        done = cost - new_cost <= tol * max(cost, 1e-12) or np.max(np.abs(step)) < 1e-9
-        cost, r, J, w = new_cost, r_new, J_new, w_new
-        lam = max(lam / 10.0, 1e-12)
-        if done:
-            break
-    return v, it, cost
+    return levenberg_marquardt(problem, v, active, huber=huber, max_iterations=max_iterations, tol=tol,
+                               damped_step=partial(schur_step, n_pose_vars=3 * problem.n_poses))
 
 
 __all__ = ["POSE_BANDWIDTH", "banded_upper", "schur_step", "levenberg_marquardt_schur"]
