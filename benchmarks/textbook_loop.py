@@ -29,7 +29,7 @@ import numpy as np
 
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.core.ekf import initialise_landmark, innovation_statistics, update_landmark_one
-from fastslam_edu.landmark.evidence import evidence_fractions
+from fastslam_edu.landmark.evidence import tempering_exponents_of
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 from fastslam_edu.landmark.gate import Gate
 from fastslam_edu.landmark.segments import measurement_segments
@@ -52,7 +52,7 @@ class Particle:
         return copy.deepcopy(self)
 
 
-def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_chi2=None, power: float = 1.0) -> None:
+def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_chi2=None, beta: float = 1.0) -> None:
     """Lines 6–18 of FastSLAM_1 for one particle and one measurement.
 
     With a gate, if ``d² = νᵀQ⁻¹ν > gate_chi2`` the measurement is an outlier for
@@ -60,8 +60,8 @@ def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_
     landmark is left alone — unless the landmark was seen only once, which is
     then re-initialised from the new sighting at no cost in weight (one of its
     two sightings is wrong). The measurements no particle explains never get
-    here (:func:`is_explained`). ``power`` β: the weight grows by β · log N(ν; 0, Q)
-    (:func:`fastslam_edu.landmark.evidence.evidence_fractions`).
+    here (:func:`is_explained`). ``beta`` β: the weight grows by β · log N(ν; 0, Q)
+    (:func:`fastslam_edu.landmark.evidence.tempering_exponents_of`).
     """
     if j not in p.landmarks:
         p.landmarks[j] = initialise_landmark(p.pose, z, R)
@@ -69,7 +69,7 @@ def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_
         return
     mu, sigma = p.landmarks[j]
     mu_new, sigma_new, loglik = update_landmark_one(mu, sigma, p.pose, z, R)
-    loglik *= power
+    loglik *= beta
     if gate_chi2 is not None:
         _, d2 = innovation_statistics(mu, sigma, p.pose, z, R)
         if d2 > gate_chi2:
@@ -137,16 +137,16 @@ def run_fastslam_loop(
         if len(z) == 0:
             continue
         escape = escapes.escaped(stream.t[e], lm)
-        power = evidence_fractions(stream.t[e], lm, last_seen, params.measurement_correlation_s)
+        betas = tempering_exponents_of(stream.t[e], lm, last_seen, params.measurement_correlation_s)
         explained = np.ones(len(lm), dtype=bool)
-        for i, (zi, j, R, beta) in enumerate(zip(z, lm, params.measurement_covariance(z), power)):
+        for i, (zi, j, R, beta) in enumerate(zip(z, lm, params.measurement_covariance(z), betas)):
             explained[i] = is_explained(particles, zi, int(j), R, params.gate_chi2)
             if not (explained[i] or escape[i]):
                 continue  # rejected: no particle explains it
             gate = None if escape[i] else params.gate_chi2
             for p in particles:
                 update_particle(p, zi, int(j), R, update_map=params.mode != "localize", gate_chi2=gate,
-                                power=float(beta))
+                                beta=float(beta))
         escapes.record(stream.t[e], lm, explained)
         w = weights_from_log(np.array([p.logw for p in particles]))
         if effective_sample_size(w) < params.resample_threshold * M:

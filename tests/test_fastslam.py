@@ -35,7 +35,7 @@ from fastslam_edu.datasets.events import groundtruth_at
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.core.ekf import update_landmark_one
 from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
-from fastslam_edu.landmark.evidence import evidence_fractions
+from fastslam_edu.landmark.evidence import tempering_exponents_of
 from fastslam_edu.landmark.gate import Gate
 from fastslam_edu.landmark.hooks import Hook, Kidnap, Monitor
 from fastslam_edu.landmark.particle_set import (ParticleSet, combined_heading, combined_map, combined_pose,
@@ -492,26 +492,26 @@ def test_gate_escape_starts_exactly_escape_s_after_the_first_unexplained_sightin
 def test_evidence_fractions_closed_form():
     """β = min(1, Δt/τ), Δt since the previous sighting of the same landmark; first sightings count fully."""
     last = np.full(4, -np.inf)
-    np.testing.assert_array_equal(evidence_fractions(10.0, [0, 2], last, 4.0), [1.0, 1.0])
-    np.testing.assert_allclose(evidence_fractions(11.0, [0, 1], last, 4.0), [0.25, 1.0])
-    np.testing.assert_allclose(evidence_fractions(19.0, [2, 0], last, 4.0), [1.0, 1.0])
-    np.testing.assert_allclose(evidence_fractions(19.5, [2], last, 4.0), [0.125])
+    np.testing.assert_array_equal(tempering_exponents_of(10.0, [0, 2], last, 4.0), [1.0, 1.0])
+    np.testing.assert_allclose(tempering_exponents_of(11.0, [0, 1], last, 4.0), [0.25, 1.0])
+    np.testing.assert_allclose(tempering_exponents_of(19.0, [2, 0], last, 4.0), [1.0, 1.0])
+    np.testing.assert_allclose(tempering_exponents_of(19.5, [2], last, 4.0), [0.125])
     np.testing.assert_array_equal(last, [19.0, 11.0, 19.5, -np.inf])
-    np.testing.assert_array_equal(evidence_fractions(20.0, [2, 3], last, None), [1.0, 1.0])
+    np.testing.assert_array_equal(tempering_exponents_of(20.0, [2, 3], last, None), [1.0, 1.0])
 
 
-@pytest.mark.parametrize("power", [1.0, 0.25, 0.0])
-def test_power_scales_only_the_weight(power):
+@pytest.mark.parametrize("beta", [1.0, 0.25, 0.0])
+def test_beta_scales_only_the_weight(beta):
     """The EKF update is the textbook one whatever β; the log weight grows by β · log N(ν; 0, Q)."""
     ps, ref = _gate_world(), _gate_world()
     z = np.array([2.02, 0.01])
-    update_with_measurement(ps, z, 0, R_SIM, gate_chi2=None, power=power)
+    update_with_measurement(ps, z, 0, R_SIM, gate_chi2=None, beta=beta)
     update_with_measurement(ref, z, 0, R_SIM, gate_chi2=None)
     np.testing.assert_array_equal(ps.mu, ref.mu)
     np.testing.assert_array_equal(ps.sigma, ref.sigma)
-    np.testing.assert_allclose(ps.logw, power * ref.logw, rtol=1e-15, atol=0)
+    np.testing.assert_allclose(ps.logw, beta * ref.logw, rtol=1e-15, atol=0)
     batched = _gate_world()
-    update_with_measurements(batched, z[None], [0], R_SIM, power=[power])
+    update_with_measurements(batched, z[None], [0], R_SIM, beta=[beta])
     np.testing.assert_array_equal(batched.logw, ps.logw)
 
 

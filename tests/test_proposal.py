@@ -253,7 +253,7 @@ def test_the_update_weighs_with_the_fastslam2_weight():
     before = ps.logw.copy()
     proposal_loglik = _run_sampler(ps, z, [0])
     assert not np.allclose(ps.poses, x_bar)  # the poses moved
-    update_with_sightings(ps, make_sightings(z[None], [0], R, len(ps), power=[0.5], proposal_loglik=proposal_loglik),
+    update_with_sightings(ps, make_sightings(z[None], [0], R, len(ps), beta=[0.5], proposal_loglik=proposal_loglik),
                           gate_chi2=27.6)
     np.testing.assert_allclose(ps.logw - before, 0.5 * expected, atol=1e-9)
 

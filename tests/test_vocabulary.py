@@ -33,12 +33,7 @@ KNOWN_DUPLICATES: set[str] = {
 }
 
 #: Modules whose docstrings still give landmark shapes with K (being edited by others in issue 30).
-KNOWN_K_SHAPES: set[str] = {
-    "app/experiment.py",
-    "landmark/fastslam.py",
-    "landmark/particle_set.py",
-    "landmark/step_records.py",
-}
+KNOWN_K_SHAPES: set[str] = set()
 
 #: A shape whose first axis is K: ``(K,)``, ``(K, 2)``, ``(K,2,2)`` ...
 K_SHAPE = re.compile(r"\(K,\s*(?:\d+\s*(?:,\s*\d+\s*)*)?\)")
@@ -167,12 +162,12 @@ def test_the_cli_association_option_takes_the_three_rules():
 
 def test_one_name_for_the_tempering_exponent():
     """β is the tempering exponent: ``tempering_exponents`` the compiled kernel (writes β), ``tempering_exponents_of``
-    its teaching form (returns β), the same numbers; ``evidence_fractions`` is only an alias of the teaching form."""
+    its teaching form (returns β), the same numbers; the old name ``evidence_fractions`` is gone."""
     import numpy as np
 
     from fastslam_edu.landmark import evidence
 
-    assert evidence.evidence_fractions is evidence.tempering_exponents_of
+    assert not hasattr(evidence, "evidence_fractions")
     last = np.array([10.0, -np.inf, 18.0])
     beta = np.empty(3)
     evidence.tempering_exponents(19.0, np.array([0, 1, 2]), last.copy(), 4.0, beta)

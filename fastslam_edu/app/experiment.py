@@ -94,7 +94,7 @@ def dropped_sightings_notes(log: RobotLog) -> list[str]:
 
 
 def _scored(counts: dict, result, poses, landmarks, dataset: Dataset, log: RobotLog) -> dict:
-    """``counts`` and the errors of ``poses`` (N, 3) and ``landmarks`` (K, 2) at ``result.t`` (:func:`score_estimate`)."""
+    """``counts`` and the errors of ``poses`` (T, 3) and ``landmarks`` (N, 2) at ``result.t`` (:func:`score_estimate`)."""
     return counts | score_estimate(result.t, poses, landmarks, result.observed, result.landmark_subjects, dataset, log)
 
 
@@ -126,7 +126,7 @@ def landmark_std_mean(cov, observed) -> float | None:
 def score_estimate(t, poses, landmarks, observed, landmark_subjects, dataset: Dataset, log: RobotLog) -> dict:
     """Path and map errors of an estimate against groundtruth (the figures of the module docstring).
 
-    ``t`` (N,), ``poses`` (N, 3): the estimated path; ``landmarks`` (K, 2) with ``observed`` (K,)
+    ``t`` (T,), ``poses`` (T, 3): the estimated path; ``landmarks`` (N, 2) with ``observed`` (N,)
     the map, in the order of ``landmark_subjects``. Poses outside the groundtruth's span are not scored.
     """
     out: dict = {"landmarks_observed": int(np.sum(observed))}

@@ -300,7 +300,7 @@ def expected_measurement(pose, m):
 
 @njit(cache=True, inline="always")
 def ekf_initialise(pose, z, R, mu, sigma):
-    """Lines 6–8: ``mu`` (2,) and ``sigma`` (2, 2) of a landmark seen for the first time, in place.
+    """Lines 7–9: ``mu`` (2,) and ``sigma`` (2, 2) of a landmark seen for the first time, in place.
 
     :math:`\\mu = h^{-1}(x, z) = (x + r\\cos(\\phi+\\theta),\\ y + r\\sin(\\phi+\\theta))` and
     :math:`\\Sigma = G R G^\\top` with :math:`G = \\partial h^{-1}/\\partial z = H^{-1}`.
@@ -318,7 +318,7 @@ def ekf_initialise(pose, z, R, mu, sigma):
 
 
 class Innovation(NamedTuple):
-    """What :func:`ekf_innovation` computes for one landmark (lines 11–13 and 17), entry by entry.
+    """What :func:`ekf_innovation` computes for one landmark (lines 12–14 and 18), entry by entry.
 
     ``nu0, nu1``: :math:`\\nu = z - \\hat z` [m, rad] (bearing wrapped); ``h00 … h11``:
     :math:`H = \\partial h/\\partial m`; ``q00, q01, q11``: :math:`Q = H\\Sigma H^\\top + R` (symmetric:
@@ -341,7 +341,7 @@ class Innovation(NamedTuple):
 
 @njit(cache=True, inline="always")
 def ekf_innovation(pose, z, R, mu, sigma):
-    """Lines 11–13 and 17: innovation, its covariance and likelihood for one landmark, as an :class:`Innovation`.
+    """Lines 12–14 and 18: innovation, its covariance and likelihood for one landmark, as an :class:`Innovation`.
 
     :math:`\\nu = z - \\hat z` (bearing wrapped), :math:`H`, :math:`Q = H\\Sigma H^\\top + R` (symmetric),
     :math:`d^2 = \\nu^\\top Q^{-1}\\nu` and :math:`\\log\\mathcal N(\\nu; 0, Q) = -\\tfrac12 d^2 - \\log 2\\pi - \\tfrac12\\log\\det Q`.
@@ -363,7 +363,7 @@ def ekf_innovation(pose, z, R, mu, sigma):
 
 @njit(cache=True, inline="always")
 def ekf_update(pose, z, R, mu, sigma, gate_chi2):
-    """Lines 11–17: the EKF update of one landmark (``mu`` (2,), ``sigma`` (2, 2), in place).
+    """Lines 12–18: the EKF update of one landmark (``mu`` (2,), ``sigma`` (2, 2), in place).
 
     :math:`K = \\Sigma H^\\top Q^{-1}`, :math:`\\mu \\mathrel{+}= K\\nu`, :math:`\\Sigma = (I - KH)\\Sigma`
     (kept exactly symmetric), unless :math:`d^2 >` ``gate_chi2`` (``inf``: always).

@@ -8,7 +8,6 @@ independent, they make the filter several times too confident. Each sighting's l
 
 One name for one concept: the tempering exponent β. :func:`tempering_exponents` is the compiled kernel the filter
 runs (it writes β into an array it is given); :func:`tempering_exponents_of` is its teaching form (it returns β).
-``evidence_fractions`` is the old name of the teaching form, kept for callers not yet moved.
 """
 
 from __future__ import annotations
@@ -58,8 +57,4 @@ def tempering_exponents_of(t, landmarks, last_seen, tau: float | None) -> np.nda
     return beta
 
 
-#: The old name of :func:`tempering_exponents_of` (``landmark/fastslam.py``, ``landmark/robot_sightings.py``,
-#: ``benchmarks/textbook_loop.py`` and ``tests/test_fastslam.py`` still call it by it).
-evidence_fractions = tempering_exponents_of
-
-__all__ = ["tempering_exponents", "tempering_exponents_of", "evidence_fractions"]
+__all__ = ["tempering_exponents", "tempering_exponents_of"]

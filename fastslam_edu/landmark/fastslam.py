@@ -12,7 +12,7 @@ The filter of Montemerlo et al. (2002), in the order of the MR.CLAM write-up's
    updated and the particle's log weight grows by the log-likelihood
    :math:`\\log \\mathcal N(\\nu; 0, Q)` (:func:`fastslam_edu.core.ekf.update_landmark`), times the
    fraction :math:`\\beta \\le 1` of independent evidence the sighting carries
-   (:func:`evidence_fractions`; 1 in the textbook).
+   (:func:`tempering_exponents_of`; 1 in the textbook).
 3. **Resample** (:mod:`fastslam_edu.core.resampling`) when the effective sample size
    :math:`N_\\text{eff} = 1/\\sum_m (w^{[m]})^2` falls below a fraction of
    :math:`M` (default 0.5); weights are reset to uniform afterwards.
@@ -56,7 +56,7 @@ from fastslam_edu.core.params import Params
 from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.landmark.evidence import evidence_fractions
+from fastslam_edu.landmark.evidence import tempering_exponents_of
 from fastslam_edu.landmark.fastslam_step import normalise_weights, run_segments, weigh_instant, weighted_mean_pose
 from fastslam_edu.landmark.gate import Gate
 from fastslam_edu.landmark.hooks import ProgressBar
@@ -105,7 +105,7 @@ class FastSLAMParams(Params):
       applied without the gate: the filter is lost, not the sensor.
     * **Tempered likelihoods**: a sighting :math:`\\Delta t` after the previous sighting
       of the same landmark weighs the particles with its likelihood to the power
-      :math:`\\min(1, \\Delta t/\\tau)`, :math:`\\tau = 4` s (:func:`evidence_fractions`).
+      :math:`\\min(1, \\Delta t/\\tau)`, :math:`\\tau = 4` s (:func:`tempering_exponents_of`).
     * **Resampling** when :math:`N_\\text{eff} < M/2`, the usual rule of thumb: it keeps
       the particle diversity that resampling at every step (the write-up's
       choice) throws away.
@@ -137,7 +137,7 @@ class FastSLAMParams(Params):
     measurement_correlation_s : float or None
         :math:`\\tau`: a sighting of a landmark :math:`\\Delta t` seconds after the previous
         sighting of the same landmark weighs the particles with its likelihood to
-        the power :math:`\\beta = \\min(1, \\Delta t / \\tau)` (:func:`evidence_fractions`): its error
+        the tempering exponent :math:`\\beta = \\min(1, \\Delta t / \\tau)` (:func:`tempering_exponents_of`): its error
         repeats the previous one's, so it carries only part of an independent
         sighting's evidence. The EKF update of the landmark is unchanged. None:
         every sighting counts fully (the textbook).
@@ -217,8 +217,8 @@ class FastSLAMResult:
     t : (N,) step times [s]
     pose_mean : (N, 3) weighted-mean pose after each step
     pose_best : (N, 3) pose of the highest-weight particle after each step
-    landmarks_mean, landmarks_cov, observed : the combined map at the end ((K,2), (K,2,2), (K,))
-    landmarks_best : (K, 2) map of the highest-weight particle at the end
+    landmarks_mean, landmarks_cov, observed : the combined map at the end ((N, 2), (N, 2, 2), (N,))
+    landmarks_best : (N, 2) map of the highest-weight particle at the end
     ess_t, ess : times and :math:`N_\\text{eff}` at every step that had measurements
     n_resamples, measurements_used, measurements_rejected : counts
     filter_seconds : wall time of the filter loop, without compilation
@@ -346,10 +346,10 @@ class FilterRun:
         t, record = self.stream.t[e], self.record
         z, lm = self.stream.measurements_at(e)
         escape = self.gate.escaped(t, lm)
-        beta = evidence_fractions(t, lm, self.last_seen, self.params.measurement_correlation_s)
+        beta = tempering_exponents_of(t, lm, self.last_seen, self.params.measurement_correlation_s)
         R = self.R[self.stream.offsets[e] : self.stream.offsets[e + 1]]
         explained = self.particles.update(z, lm, R, update_map=self.update_map, gate_chi2=self.gate.chi2,
-                                          escape=escape, power=beta)
+                                          escape=escape, beta=beta)
         self.gate.record(t, lm, explained)
         ok = explained | escape
         record.totals[SIGHTINGS_USED] += int(ok.sum())
@@ -415,8 +415,8 @@ def kernel_inputs(stream: EventStream, params: FastSLAMParams, gate: Gate, impro
                         resample_threshold=float(params.resample_threshold),
                         resampler=RESAMPLER_CODES.get(params.resampler, -1), proposal=int(improved),
                         min_count=2 if update_map else 1)
-    N, n_instants = len(stream), int(np.count_nonzero(np.diff(stream.offsets)))
-    record = Record(pose_mean=np.empty((N, 3)), pose_best=np.empty((N, 3)), ess_t=np.empty(n_instants),
+    T, n_instants = len(stream), int(np.count_nonzero(np.diff(stream.offsets)))
+    record = Record(pose_mean=np.empty((T, 3)), pose_best=np.empty((T, 3)), ess_t=np.empty(n_instants),
                     ess=np.empty(n_instants), w=np.array(w, dtype=float), unexplained_since=gate.unexplained_since,
                     last_seen=np.full(stream.n_landmarks, -np.inf), totals=np.zeros(N_TOTALS, dtype=np.int64))
     return log, settings, record
@@ -429,16 +429,16 @@ def start_run(stream: EventStream, params: FastSLAMParams, rng, *, x0=None, land
     x0 = stream.x0 if x0 is None else np.asarray(x0, dtype=float)
     if x0 is None:
         raise ValueError("no initial pose: the stream has no groundtruth; pass x0=(x, y, theta)")
-    M, K, N = params.n_particles, stream.n_landmarks, len(stream)
-    if N == 0:
+    M, N, T = params.n_particles, stream.n_landmarks, len(stream)
+    if T == 0:
         raise ValueError("the event stream is empty")
-    particles = (ParticleSet if particle_class is None else particle_class).initial(M, K, x0)
+    particles = (ParticleSet if particle_class is None else particle_class).initial(M, N, x0)
     if params.mode == "localize":
         if landmarks is None:
             raise ValueError('mode="localize" needs the known landmark positions (landmarks=...)')
         landmarks = np.asarray(landmarks, dtype=float)
-        if landmarks.shape != (K, 2):
-            raise ValueError(f"landmarks must have shape ({K}, 2), got {landmarks.shape}")
+        if landmarks.shape != (N, 2):
+            raise ValueError(f"landmarks must have shape ({N}, 2), got {landmarks.shape}")
         particles = particles.with_known_map(landmarks)
     if params.mode == "map":
         proposal = KnownPoses(groundtruth_poses)
@@ -448,7 +448,7 @@ def start_run(stream: EventStream, params: FastSLAMParams, rng, *, x0=None, land
         proposal = ImprovedProposal()
     else:
         proposal = MotionProposal()
-    gate = Gate(params.gate_chi2, params.gate_escape_s, K)
+    gate = Gate(params.gate_chi2, params.gate_escape_s, N)
     log, settings, record = kernel_inputs(stream, params, gate, type(proposal) is ImprovedProposal, particles.weights)
     return FilterRun(stream=stream, params=params, rng=rng, particles=particles, proposal=proposal, gate=gate,
                      u=log.u, dt=log.dt, R=log.R, log=log, settings=settings, record=record)
@@ -474,7 +474,7 @@ def run_fastslam(
     params : FastSLAMParams
     rng : numpy.random.Generator or int seed
     x0 : (3,) initial pose; default ``stream.x0`` (groundtruth at the first step).
-    landmarks : (K, 2) known landmark positions, needed for ``mode="localize"``.
+    landmarks : (N, 2) known landmark positions, needed for ``mode="localize"``.
     groundtruth_poses : callable ``t -> (n, 3)`` poses, needed for ``mode="map"``.
     particle_class : how particles store their maps: :class:`ParticleSet` (dense
         arrays, the default) or :class:`fastslam_edu.landmark.fastslam_tree.TreeParticleSet`
@@ -517,7 +517,6 @@ def run_python_loop(run: FilterRun, cut_times) -> None:
 __all__ = ["FastSLAMParams", "FastSLAMResult", "FilterRun", "MODES", "PROPOSALS", "CHI2_2DOF_999", "CHI2_2DOF_1E6",
            "start_run", "run_fastslam", "run_python_loop"]
 
-#: Names of other modules that files owned elsewhere read from here (smoother.py, multi_robot.py, ekf_slam.py:
-#: evidence_fractions, stream_commands, Gate; app/cli.py: ProgressBar; chapter 8: MAX_SEGMENT; chapter 9:
-#: evidence_fractions), kept importable from this module.
-REEXPORTED = (evidence_fractions, stream_commands, Gate, ProgressBar, MAX_SEGMENT)
+#: Names of other modules that files owned elsewhere read from here (smoother_factors.py, ekf_slam.py:
+#: stream_commands, Gate; app/cli.py: ProgressBar; chapter 8: MAX_SEGMENT), kept importable from this module.
+REEXPORTED = (stream_commands, Gate, ProgressBar, MAX_SEGMENT)

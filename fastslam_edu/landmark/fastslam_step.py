@@ -9,13 +9,15 @@ Table 13.1 (FastSLAM 1.0, known correspondences), for each particle ``m``, and
 where each line is computed::
 
     line 4      x_t^[m] ~ p(x_t | x_{t-1}^[m], u_t)              sample_pose
-    lines 6-9   landmark j never seen: mu = h^-1(x, z),            ekf.ekf_initialise
-                Sigma = H^-1 R H^-T, weight unchanged
-    lines 11-13 z_hat = h(mu, x), H = dh/dm, Q = H Sigma H^T + R   ekf.ekf_innovation
-    lines 14-16 K = Sigma H^T Q^-1, mu += K (z - z_hat),           ekf.ekf_update
+    line 5      j = c_t, the landmark the sighting is of
+    lines 7-9   landmark j never seen: mu = h^-1(x, z),            ekf.ekf_initialise
+                Sigma = H^-1 R H^-T
+    line 10     w = p0 (the particle's weight is left unchanged)
+    lines 12-14 z_hat = h(mu, x), H = dh/dm, Q = H Sigma H^T + R   ekf.ekf_innovation
+    lines 15-17 K = Sigma H^T Q^-1, mu += K (z - z_hat),           ekf.ekf_update
                 Sigma = (I - K H) Sigma
-    line 17     w *= |2 pi Q|^(-1/2) exp(-nu^T Q^-1 nu / 2)        (a log weight)
-    lines 5-17  for one particle and one sighting                  update_particle
+    line 18     w *= |2 pi Q|^(-1/2) exp(-nu^T Q^-1 nu / 2)        (a log weight)
+    lines 5-18  for one particle and one sighting                  update_particle
 
 What real data adds to the table (see :mod:`fastslam_edu.landmark.fastslam`): the outlier
 gate (a sighting that *no* particle explains, :func:`explains`, is set aside), its
@@ -46,7 +48,7 @@ The 2×2 algebra (in :mod:`fastslam_edu.core.ekf`) is written entry by entry (``
 Reference counts: numba counts the references to every array a compiled function holds. Each field read
 from a named tuple (``P.mu``), each view (``P.mu[m, j]``) and each argument of an inlined function
 (``update_particle(P, m, s, ...)`` holds ``P``'s six arrays and ``s``'s three) adds one: an atomic
-increment, and a call to decrement it later. Lines 5–17 are a few dozen multiplications per particle,
+increment, and a call to decrement it later. Lines 5–18 are a few dozen multiplications per particle,
 so these counts took three quarters of their time (on D1 R2, 145 of 190 ns per particle and sighting).
 :func:`update_particles` and :func:`copy_particle` create no array, they only read and write those
 their caller holds, and are compiled without the counts (``_nrt=False``; an allocation there, such as
@@ -204,11 +206,11 @@ def standard_normals(rng, out):
                 out[t, d, m] = rng.standard_normal()
 
 
-# ---------------------------------------------------------------- lines 5–17 for one particle, behind the gate
+# ---------------------------------------------------------------- lines 5–18 for one particle, behind the gate
 
 
 class Sighting(NamedTuple):
-    """One sighting of the instant as lines 5–17 take it (:func:`sighting_of`): z (2,) ``(r, φ)``;
+    """One sighting of the instant as lines 5–18 take it (:func:`sighting_of`): z (2,) ``(r, φ)``;
     R (2, 2); j the landmark; beta the exponent of its likelihood; loglik (M,) FastSLAM 2.0's
     log-likelihood per particle (NaN: FastSLAM 1.0's)."""
 
@@ -227,7 +229,7 @@ def sighting_of(S, i):
 
 @njit(cache=True, inline="always")
 def update_particle(P, m, s, gate_chi2, update_map):
-    """Lines 5–17 for particle ``m`` (:class:`Particles`) and one sighting ``s`` (:class:`Sighting`).
+    """Lines 5–18 for particle ``m`` (:class:`Particles`) and one sighting ``s`` (:class:`Sighting`).
 
     A first sighting initialises the landmark, weight unchanged. Otherwise the
     particle's log weight grows by :math:`\\beta \\log\\mathcal N(\\nu; 0, Q)` and its
@@ -258,7 +260,7 @@ def update_particle(P, m, s, gate_chi2, update_map):
 
 @njit(cache=True)
 def initialise_landmark(P, m, s):
-    """Lines 6–8: landmark ``s.j`` of particle ``m`` from the inverse model (:func:`fastslam_edu.core.ekf.ekf_initialise`),
+    """Lines 7–9: landmark ``s.j`` of particle ``m`` from the inverse model (:func:`fastslam_edu.core.ekf.ekf_initialise`),
     seen once. (Not inlined: it runs once per landmark and particle, and the update's loop is faster without it.)"""
     ekf_initialise(P.poses[m], s.z, s.R, P.mu[m, s.j], P.sigma[m, s.j])
     P.seen[m, s.j] = True
@@ -282,7 +284,7 @@ def explains(P, s, gate_chi2):
 
 @njit(cache=True, _nrt=False)
 def update_particles(P, S, gate_chi2, update_map, explained):
-    """Lines 5–17 for every sighting of one instant and every particle, in the order given.
+    """Lines 5–18 for every sighting of one instant and every particle, in the order given.
 
     For each sighting: the gate's verdict over all particles (:func:`explains`,
     written to ``explained`` (n,)); a sighting no particle explains is skipped by
@@ -457,7 +459,7 @@ def measure_instant(P, L, s, k, rng, out, prediction):
 @njit(cache=True)
 def weigh_instant(P, L, s, k, rng, out, prediction):
     """Step 2 and the weights at measurement step ``k`` (arguments as :func:`measure_instant`): the gate's escapes
-    and the exponents β, FastSLAM 2.0's poses (with a ``prediction``), lines 5–17 for every particle, the gate's
+    and the exponents β, FastSLAM 2.0's poses (with a ``prediction``), lines 5–18 for every particle, the gate's
     memory, the counts of sightings used and rejected, the normalised weights ``out.w`` and :math:`N_\\text{eff}`
     (recorded, and returned). The Python loop of :func:`fastslam_edu.landmark.fastslam.run_fastslam` calls it
     too, then resamples itself, so that its hooks see the parents drawn.

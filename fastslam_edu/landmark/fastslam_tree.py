@@ -107,9 +107,9 @@ class TreeParticleSet:
         return self
 
     def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
-               power=None, proposal_loglik=None) -> np.ndarray:
+               beta=None, proposal_loglik=None) -> np.ndarray:
         """Step 2 for the measurements of one instant: :func:`update_trees_with_sightings`."""
-        sightings = make_sightings(z, k, R, len(self), escape=escape, power=power, proposal_loglik=proposal_loglik)
+        sightings = make_sightings(z, k, R, len(self), escape=escape, beta=beta, proposal_loglik=proposal_loglik)
         return update_trees_with_sightings(self, sightings, gate_chi2=gate_chi2, update_map=update_map)
 
     def to_particle_set(self) -> ParticleSet:

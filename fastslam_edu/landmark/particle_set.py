@@ -69,7 +69,7 @@ class ParticleSet:
         return w
 
     def with_known_map(self, landmarks) -> "ParticleSet":
-        """Every particle holding the known landmarks ``(K, 2)`` (localisation), Σ = 10⁻⁶ I."""
+        """Every particle holding the known landmarks ``(N, 2)`` (localisation), Σ = 10⁻⁶ I."""
         self.mu[:] = landmarks
         self.sigma[:] = np.eye(2) * 1e-6
         self.seen[:] = True
@@ -81,9 +81,9 @@ class ParticleSet:
         return Particles(self.poses, self.mu, self.sigma, self.seen, self.count, self.logw)
 
     def update(self, z, k, R, *, update_map: bool = True, gate_chi2: float | None = None, escape=None,
-               power=None, proposal_loglik=None) -> np.ndarray:
+               beta=None, proposal_loglik=None) -> np.ndarray:
         """Step 2 for the measurements of one instant: :func:`update_with_sightings`."""
-        sightings = make_sightings(z, k, R, len(self), escape=escape, power=power, proposal_loglik=proposal_loglik)
+        sightings = make_sightings(z, k, R, len(self), escape=escape, beta=beta, proposal_loglik=proposal_loglik)
         return update_with_sightings(self, sightings, gate_chi2=gate_chi2, update_map=update_map)
 
     def to_particle_set(self) -> "ParticleSet":
@@ -184,11 +184,11 @@ def update_with_measurement(particles: ParticleSet, z, k: int, R, **options) -> 
                                          **options)[0])
 
 
-def make_sightings(z, k, R, n_particles: int, *, escape=None, power=None, proposal_loglik=None) -> Sightings:
+def make_sightings(z, k, R, n_particles: int, *, escape=None, beta=None, proposal_loglik=None) -> Sightings:
     """The sightings of one instant as the step's kernels take them (:class:`fastslam_edu.landmark.fastslam_step.Sightings`).
 
     ``z`` (n, 2), ``k`` (n,), ``R`` (n, 2, 2) or (2, 2); ``escape`` (n,) bool
-    (default none escapes the gate), ``power`` (n,) the likelihoods' exponents β
+    (default none escapes the gate), ``beta`` (n,) the likelihoods' exponents β
     (default 1), ``proposal_loglik`` (M, n) log weights that replace FastSLAM
     1.0's where not NaN (default all NaN).
     """
@@ -199,10 +199,10 @@ def make_sightings(z, k, R, n_particles: int, *, escape=None, power=None, propos
     if R.shape != (n, 2, 2):
         R = np.broadcast_to(R, (n, 2, 2)).copy()
     escape = np.zeros(n, dtype=bool) if escape is None else _per_sighting(escape, bool, n)
-    power = np.ones(n) if power is None else _per_sighting(power, float, n)
+    beta = np.ones(n) if beta is None else _per_sighting(beta, float, n)
     loglik = (np.full((n_particles, n), np.nan) if proposal_loglik is None
               else np.asarray(proposal_loglik, float).reshape(n_particles, n))
-    return Sightings(z, k, R, escape, power, loglik)
+    return Sightings(z, k, R, escape, beta, loglik)
 
 
 def _per_sighting(values, dtype, n: int) -> np.ndarray:
@@ -221,10 +221,10 @@ def update_with_sightings(particles: ParticleSet, sightings: Sightings, *, gate_
 
 
 def update_with_measurements(particles: ParticleSet, z, k, R, *, update_map: bool = True,
-                             gate_chi2: float | None = None, escape=None, power=None) -> np.ndarray:
+                             gate_chi2: float | None = None, escape=None, beta=None) -> np.ndarray:
     """Step 2 for all the measurements of one instant: ``z`` (n, 2) of landmarks ``k`` (n,), in order.
 
-    Lines 5–17 of table 13.1 for every particle
+    Lines 5–18 of table 13.1 for every particle
     (:func:`fastslam_edu.landmark.fastslam_step.update_particles`): particles that have not
     seen a landmark initialise it (:math:`\\mu = h^{-1}(x, z)`, :math:`\\Sigma = G R G^\\top`) and
     keep their weight; the others update its EKF and add
@@ -246,8 +246,8 @@ def update_with_measurements(particles: ParticleSet, z, k, R, *, update_map: boo
         None: no gate.
     escape : (n,) bool, optional
         Measurements applied without the gate (:class:`Gate`).
-    power : (n,), optional
-        Exponents :math:`\\beta` of their likelihoods (:func:`evidence_fractions`; default 1).
+    beta : (n,), optional
+        Exponents :math:`\\beta` of their likelihoods (:func:`tempering_exponents_of`; default 1).
 
     FastSLAM 2.0 weighs with its own log weights: :func:`make_sightings` (``proposal_loglik``)
     and :func:`update_with_sightings`.
@@ -257,7 +257,7 @@ def update_with_measurements(particles: ParticleSet, z, k, R, *, update_map: boo
     explained : (n,) bool
         False where no particle explains the measurement (rejected by the gate, unless escaped).
     """
-    sightings = make_sightings(z, k, R, len(particles), escape=escape, power=power)
+    sightings = make_sightings(z, k, R, len(particles), escape=escape, beta=beta)
     return update_with_sightings(particles, sightings, gate_chi2=gate_chi2, update_map=update_map)
 
 
@@ -322,7 +322,7 @@ def combined_map(particles: ParticleSet):
     the covariance of the Gaussian mixture (the write-up's "weighted sum of squared
     covariances" is not a covariance: see the chapter on putting it together).
 
-    Returns ``mu (K, 2)``, ``sigma (K, 2, 2)``, ``observed (K,)``; NaN for unseen landmarks.
+    Returns ``mu (N, 2)``, ``sigma (N, 2, 2)``, ``observed (N,)``; NaN for unseen landmarks.
     """
     w = particles.weights[:, None] * particles.seen  # (M, K)
     tot = w.sum(axis=0)

@@ -84,7 +84,7 @@ N_TOTALS = 4
 
 class Record(NamedTuple):
     """What the run writes: pose_mean, pose_best (N, 3); ess_t, ess (one per measurement step);
-    w (M,) the current normalised weights; unexplained_since, last_seen (K,) the gate's and the
+    w (M,) the current normalised weights; unexplained_since, last_seen (N,) the gate's and the
     tempering's memory; totals (:data:`N_TOTALS`,) int, read by name: ``totals[STEPS_DONE]``,
     ``totals[SIGHTINGS_USED]``, ``totals[SIGHTINGS_REJECTED]``, ``totals[RESAMPLES]``."""
 
