@@ -45,7 +45,11 @@ seconds (target <= 30 s per robot on the 2-core machine); the JSON gains ``smoot
 ``--smoother-runs K``: the smoother starts from K filter runs (seeds s, s + 1000, ..., s + 1000 (K-1) for seed s),
 whose starts compete by their final penalised cost; its seconds include the K-1 extra filter runs.
 
-Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs N | --scheduler ADDRESS] [--greedy] [--smoother]
+``--deferred``, ``--split``: the filter with ``AssociationParams(deferred=True)`` (deferred commitment) and
+``split_tentative=True`` (a provisional landmark seen twice in one frame splits).
+
+Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs N | --scheduler ADDRESS] [--greedy] [--deferred]
+[--split] [--smoother]
 [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data; about 30 s on 2 cores for 3 seeds)
 """
@@ -80,28 +84,29 @@ SMOOTHER_TARGETS = {"ratio_to_oracle": 0.95, "landmarks_spurious": 1, "landmark_
                     "seconds": 30.0}
 
 
-def bounds(dataset: int, robot: int, seed: int, params: AssociationParams) -> tuple[float, float]:
+def bounds(dataset: int, robot: int, seed: int, params: AssociationParams) -> tuple[float, float, float]:
     """The association ceiling and the online ceiling (of ``params``' rule) of FastSLAM run with known
-    correspondences (module docstring), from one run."""
+    correspondences (module docstring), from one run, and that run's filter seconds (with the probe's hook)."""
     path = mrclam_path(dataset)
     probe = OnlineCeiling(params)
     known, _, context = run_mrclam(path, robot, seed=seed, hooks=(probe,))
     stream, true_index = anonymous_stream(path, robot, context["dataset"], context["log"], x0=context["stream"].x0)
-    return association_ceiling(known, stream, true_index, params.filter), probe.accuracy
+    return association_ceiling(known, stream, true_index, params.filter), probe.accuracy, known.filter_seconds
 
 
 def _run(dataset: int, robot: int, seed: int, params: AssociationParams) -> dict:
     """One job of the sweep: FastSLAM without barcodes on one robot with one seed, and its bounds."""
     _, summary, _ = run_mrclam_unknown(mrclam_path(dataset), robot, params, seed=seed)
     oracle = summary["association_accuracy_oracle"]
-    ceiling, online = bounds(dataset, robot, seed, params)
+    ceiling, online, known_seconds = bounds(dataset, robot, seed, params)
     return {"dataset": dataset, "robot": robot, "seed": seed, "oracle": oracle,
             "ceiling": ceiling, "online": online, "accuracy": summary["association_accuracy"],
             "ratio_to_oracle": summary["association_accuracy"] / oracle,
             "landmarks_spurious": summary["landmarks_spurious"], "landmarks_in_map": summary["landmarks_in_map"],
             "not_in_map": summary["association_breakdown"]["not_in_map"],
             "landmark_error_aligned_mean_m": summary["landmark_error_aligned_mean_m"],
-            "path_rmse_aligned_m": summary["path_rmse_aligned_m"], "filter_seconds": summary["filter_seconds"]}
+            "path_rmse_aligned_m": summary["path_rmse_aligned_m"], "filter_seconds": summary["filter_seconds"],
+            "known_seconds": known_seconds}
 
 
 def _run_smoother(dataset: int, robot: int, seed: int, params: AssociationParams, runs: int = 1) -> dict:
@@ -163,18 +168,26 @@ def main(argv=None) -> int:
     ap.add_argument("--greedy", action="store_true",
                     help="decide each instant by the greedy pairing (AssociationParams(association='greedy')), "
                          "filter and online ceiling")
+    ap.add_argument("--deferred", action="store_true",
+                    help="deferred commitment (AssociationParams(deferred=True): far sightings never commit a "
+                         "landmark's position)")
+    ap.add_argument("--split", action="store_true",
+                    help="a provisional landmark two sightings of one frame fit splits (split_tentative=True)")
     ap.add_argument("--smoother", action="store_true",
                     help="also the smoother's association from each filter run (second table, JSON 'smoother')")
     ap.add_argument("--smoother-runs", type=int, default=1, metavar="K",
                     help="with --smoother: start the smoother from K filter runs (default 1)")
     ap.add_argument("--out", type=Path, default=None,
-                    help="JSON file (default results/association_mrclam.json, or association_mrclam_greedy.json)")
+                    help="JSON file (default results/association_mrclam.json; association_mrclam_greedy.json, "
+                         "..._deferred, ..._split with those options)")
     args = ap.parse_args(argv)
     if args.smoother_runs < 1:
         ap.error(f"--smoother-runs must be >= 1, got {args.smoother_runs}")
     robots = ROBOTS + EXTRA
-    params = AssociationParams(association="greedy" if args.greedy else "joint")
-    name = "association_mrclam_greedy.json" if args.greedy else "association_mrclam.json"
+    params = AssociationParams(association="greedy" if args.greedy else "joint", deferred=args.deferred,
+                               split_tentative=args.split)
+    name = ("association_mrclam" + "_greedy" * args.greedy + "_deferred" * args.deferred + "_split" * args.split
+            + ".json")
     args.out = args.out or Path(__file__).parent / "results" / name
     start = time.perf_counter()
     try:
@@ -184,7 +197,8 @@ def main(argv=None) -> int:
         sys.exit(f"{ap.prog}: error: {error}")
     sweep = {"jobs": args.jobs, "scheduler": args.scheduler, "wall_seconds": time.perf_counter() - start}
     keys = ("oracle", "ceiling", "online", "accuracy", "ratio_to_oracle", "not_in_map", "landmarks_spurious",
-            "landmarks_in_map", "landmark_error_aligned_mean_m", "path_rmse_aligned_m")
+            "landmarks_in_map", "landmark_error_aligned_mean_m", "path_rmse_aligned_m", "filter_seconds",
+            "known_seconds")
     table = []
     for d, r in robots:
         mine = [x for x in runs if (x["dataset"], x["robot"]) == (d, r)]
@@ -200,7 +214,7 @@ def main(argv=None) -> int:
     rule = "greedy pairing" if args.greedy else "defaults (joint compatibility)"
     print(f"FastSLAM 1.0, unknown correspondences, full rate, {rule}, seeds 0-{args.seeds - 1}: medians")
     print(f"{'robot':<6} {'oracle':>7} {'ceiling':>13} {'online':>13} {'unknown':>8} {'/oracle':>8} {'(range)':>13} "
-          f"{'lost':>5} {'spurious':>9} {'aligned [m]':>12}")
+          f"{'lost':>5} {'spurious':>9} {'aligned [m]':>12} {'seconds':>8} {'known':>6}")
     for row in table:
         mark = {k: " " if row["meets"][k] else "*" for k in TARGETS}
         lo, hi = row["ratio_range"]
@@ -209,11 +223,13 @@ def main(argv=None) -> int:
               f"{row['accuracy']:>8.3f} {row['ratio_to_oracle']:>7.2f}{mark['ratio_to_oracle']} "
               f"{f'({lo:.2f}-{hi:.2f})':>13} {row['not_in_map']:>5.2f} "
               f"{row['landmarks_spurious']:>8.1f}{mark['landmarks_spurious']} "
-              f"{row['landmark_error_aligned_mean_m']:>11.2f}{mark['landmark_error_aligned_mean_m']}")
+              f"{row['landmark_error_aligned_mean_m']:>11.2f}{mark['landmark_error_aligned_mean_m']} "
+              f"{row['filter_seconds']:>8.1f} {row['known_seconds']:>6.1f}")
     print("* misses the target (ratio to the oracle >= 0.95, spurious <= 2, aligned landmark error <= 0.30 m); "
           "ceiling: own path and own map with known correspondences; online: the filter's rule decided by the "
           "particles of that run before each update (both with their ratio to the oracle in brackets); "
-          "lost: landmark sightings given to identities the final map no longer holds; "
+          "lost: landmark sightings given to identities the final map no longer holds; seconds, known: filter "
+          "seconds without and with barcodes (the latter with the online probe's hook); "
           + ", ".join(f"D{d}R{r}" for d, r in EXTRA) + ": not tuned on")
     per_robot = [[x["ratio_to_oracle"] for x in runs if (x["dataset"], x["robot"]) == (d, r)] for d, r in robots]
     mean, low, high = mean_of_medians(per_robot)

@@ -39,6 +39,13 @@ sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
    evidence :math:`\\sum\\beta`, :math:`\\beta = \\min(1, \\Delta t/\\tau)`, and is *provisional*
    (not in the map) until it reaches ``n_confirm``: another robot tracked for a few
    seconds is never confirmed.
+5. **Deferred commitment** (``deferred``, ``split_tentative``; both off by default): a sighting from beyond the
+   confirmation range :math:`r^*` (:func:`~fastslam_edu.landmark.association_params.confirmation_range`: where one
+   sighting tells apart two landmarks ``separation_m`` apart at the gate :math:`d_0^2`) cannot tell two neighbours
+   apart, so the landmark it starts is not committed: far sightings update it, and its first sighting within
+   :math:`r^*` re-initialises it from that sighting alone (:func:`measure_landmark`). A provisional landmark that
+   two sightings of one frame both fit is two things: it is re-initialised from its own sighting and the other
+   starts a landmark (:func:`splitting_sightings`).
 
 The new-landmark likelihood is the Gaussian of a fresh landmark,
 :math:`Q = H\\Sigma H^\\top + R = 2R`, evaluated :math:`d_0` standard deviations away
@@ -90,7 +97,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.ekf import ekf_update
+from fastslam_edu.core.ekf import ekf_initialise, ekf_innovation, ekf_update
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association_history import best_history, merge_copies
@@ -198,21 +205,23 @@ def apply_associations(P, m, instant, chosen, rules, next_ident, out):
     """Update, weight and negative evidence for particle ``m`` once ``chosen = (slot (n,), loglik (n,))`` is decided
     (:func:`choose_landmarks`); ``out`` (n,) receives the identity of the landmark each sighting went to.
 
-    An assigned sighting updates its landmark's EKF (lines 12–17 of table 13.1) and multiplies the weight by its
-    likelihood (line 18, tempered by the exponent :math:`\\beta = \\min(1, \\Delta t/\\tau)`); a provisional
-    landmark's, or a new one's (lines 7–9), by :math:`p_0` (line 10). Line numbers: *Probabilistic Robotics*, 2005
-    printing, table 13.1 (FastSLAM 1.0, known correspondences).
+    An assigned sighting updates its landmark's EKF (lines 12–17 of table 13.1, or a re-initialisation:
+    :func:`measure_landmark`) and multiplies the weight by its likelihood (line 18, tempered by the exponent
+    :math:`\\beta = \\min(1, \\Delta t/\\tau)`); a provisional landmark's, or a new one's (lines 7–9), by
+    :math:`p_0` (line 10). Line numbers: *Probabilistic Robotics*, 2005 printing, table 13.1 (FastSLAM 1.0, known
+    correspondences). A new landmark started beyond the confirmation range :math:`r^*` is not committed.
     """
     z, R, t = instant
     slot, lls = chosen
     taken = np.zeros(P.mu.shape[1], dtype=np.bool_)
+    split = splitting_sightings(P, m, instant, slot, rules)
     for i in range(z.shape[0]):
         k = slot[i]
         if k < 0:
             continue
         beta = 1.0 if rules.tau <= 0.0 else min(1.0, (t - P.last_t[m, k]) / rules.tau)
         ll = lls[i]  # the likelihood the association was decided by: weight and decision agree
-        ekf_update(P.poses[m], z[i], R[i], P.mu[m, k], P.sigma[m, k], math.inf)
+        measure_landmark(P, m, k, z[i], R[i], rules, split[i])
         if P.evidence[m, k] < rules.n_confirm and rules.provisional_as_new:
             ll = new_landmark_loglik(R[i], rules.new_chi2)  # a provisional landmark explains nothing yet
         P.logw[m] += beta * ll
@@ -230,9 +239,47 @@ def apply_associations(P, m, instant, chosen, rules, next_ident, out):
         out[i] = -1 if k < 0 else next_ident[0]
         if k >= 0:
             P.log_odds[m, k] = existence_log_odds(0.0, True, rules)
+            P.committed[m, k] = z[i, 0] <= rules.confirm_range
             next_ident[0] += 1
             taken[k] = True
     negative_evidence(P, m, taken, rules)
+
+
+@njit(cache=True)
+def measure_landmark(P, m, k, z, R, rules, fresh):
+    """Landmark ``k`` of particle ``m`` measured by sighting ``z`` (2,): its EKF update (lines 12–17 of table 13.1),
+    or, under deferred commitment, its re-initialisation from ``z`` alone (lines 7–9): when ``z`` is its first
+    sighting within the confirmation range :math:`r^*` (``rules.confirm_range``; the landmark is then
+    committed), or when it splits (``fresh``, :func:`splitting_sightings`). What far sightings made of it,
+    possibly two landmarks seen as one, is then forgotten; its identity, counts and evidence stay."""
+    near = z[0] <= rules.confirm_range
+    if fresh or (near and not P.committed[m, k]):
+        ekf_initialise(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k])
+        P.committed[m, k] = near
+    else:
+        ekf_update(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k], math.inf)
+
+
+@njit(cache=True)
+def splitting_sightings(P, m, instant, slot, rules):
+    """(n,) bool: sighting ``i`` went to a provisional landmark of particle ``m`` that another sighting of the same
+    instant, left without a landmark (``slot`` -1), also fits (:math:`d^2 \\le d_0^2` with the landmark's
+    :math:`Q = H\\Sigma H^\\top + R`): two things seen at once where the particle holds one, so the landmark
+    splits (``rules.split``; all False without it)."""
+    z, R, _ = instant
+    n = z.shape[0]
+    split = np.zeros(n, dtype=np.bool_)
+    if not rules.split:
+        return split
+    for i in range(n):
+        k = slot[i]
+        if k < 0 or P.evidence[m, k] >= rules.n_confirm:
+            continue
+        for j in range(n):
+            if j != i and slot[j] < 0 and ekf_innovation(P.poses[m], z[j], R[j], P.mu[m, k], P.sigma[m, k])[9] \
+                    <= rules.new_chi2:
+                split[i] = True
+    return split
 
 
 @njit(cache=True)
@@ -246,7 +293,7 @@ def select_maps(P, idx):
     else:
         before = MapParticles(P.poses.copy(), P.mu.copy(), P.sigma.copy(), P.n.copy(), P.ident.copy(), P.seen.copy(),
                               P.missed.copy(), P.evidence.copy(), P.log_odds.copy(), P.last_t.copy(),
-                              P.first_t.copy(), P.logw)
+                              P.first_t.copy(), P.committed.copy(), P.logw)
         for m in range(idx.shape[0]):
             copy_map_particle(before, idx[m], P, m)
     P.logw[:] = 0.0
@@ -266,6 +313,7 @@ def copy_map_particle(src, i, dst, m):
         dst.ident[m, k], dst.seen[m, k], dst.missed[m, k] = src.ident[i, k], src.seen[i, k], src.missed[i, k]
         dst.evidence[m, k], dst.log_odds[m, k] = src.evidence[i, k], src.log_odds[i, k]
         dst.last_t[m, k], dst.first_t[m, k] = src.last_t[i, k], src.first_t[i, k]
+        dst.committed[m, k] = src.committed[i, k]
 
 
 # ---------------------------------------------------------------- the run over a log
@@ -444,7 +492,8 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
 
 
 __all__ = ["INSTANTS_DONE", "MAPS_RESAMPLED", "LANDMARKS_CREATED", "N_ASSOCIATION_TOTALS", "choose_landmarks",
-           "associate_particle", "associate_particle_improved", "apply_associations", "select_maps",
+           "associate_particle", "associate_particle_improved", "apply_associations", "measure_landmark",
+           "splitting_sightings", "select_maps",
            "copy_map_particle", "AssociationRecord", "run_unknown_segments", "AssociationResult", "run_unknown"]
 # Chapter 19 (notebooks/19_hidden_barcodes.ipynb) imports AssociationParams, initial_particles and
 # new_landmark_loglik from here: this module uses them, so they stay importable from it.

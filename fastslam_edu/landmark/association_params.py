@@ -22,6 +22,35 @@ INDEPENDENT, GREEDY, JOINT = 0, 1, 2
 ASSOCIATION_RULES = {"independent": INDEPENDENT, "greedy": GREEDY, "joint": JOINT}
 
 
+def confirmation_range(R, separation_m: float, gate_chi2: float) -> float:
+    """:math:`r^*` [m]: the range within which one sighting tells apart two landmarks ``separation_m`` apart, at the
+    gate ``gate_chi2`` (:math:`d_0^2`); ``R`` (2, 2) the filter's :math:`\\mathrm{diag}(\\sigma_r^2, \\sigma_\\phi^2)`.
+
+    A landmark made from one sighting at range :math:`r` has the innovation covariance :math:`Q = H\\Sigma H^\\top
+    + R = 2R` (module :mod:`~fastslam_edu.landmark.association`). Its neighbour, :math:`d` away, is seen by the
+    next sighting displaced by :math:`d` in the plane: across the line of sight that is a bearing
+    :math:`d/r`, with the standard deviation :math:`\\sigma_\\perp(r) = \\sigma_\\phi r` [m]; along it a range
+    :math:`d`, with :math:`\\sigma_r(r) = \\sigma_r(0) + s\\,r`. The neighbour's sighting is outside the gate when
+
+    .. math:: \\frac{d^2}{2\\sigma(r)^2} \\ge d_0^2 .
+
+    Along the line of sight this asks :math:`\\sigma_r(r) \\le d/\\sqrt{2 d_0^2}`: with MR.CLAM's
+    :math:`\\sigma_r(0)` = 0.07 m, :math:`d` = 0.2 m and :math:`d_0^2` = 16 (0.035 m) at no range at all, so
+    a radial pair is told apart only from another direction, as the robot moves. Across it,
+    :math:`\\sigma_\\phi r \\le d/\\sqrt{2 d_0^2}`:
+
+    .. math:: r^* = \\frac{d}{\\sigma_\\phi\\sqrt{2 d_0^2}}
+
+    (:math:`\\sigma_\\phi` = 0.02 rad: :math:`r^*` = 1.77 m). The range noise's growth :math:`s` does not enter.
+    """
+    R = np.asarray(R, dtype=float)
+    if R.shape != (2, 2) or not R[1, 1] > 0:
+        raise ValueError(f"R must be a 2x2 covariance with a bearing variance > 0, got {R!r}")
+    if not (separation_m > 0 and gate_chi2 > 0):
+        raise ValueError(f"separation_m and gate_chi2 must be > 0, got {separation_m!r}, {gate_chi2!r}")
+    return float(separation_m / (math.sqrt(R[1, 1]) * math.sqrt(2.0 * gate_chi2)))
+
+
 @dataclass(frozen=True, eq=False)
 class AssociationParams(Params):
     """Settings of FastSLAM with unknown correspondences.
@@ -86,6 +115,16 @@ class AssociationParams(Params):
     merge_radius : float
         In the final map, a landmark within this distance [m] of an older one never sighted in the same instant
         is merged into it (:func:`merge_copies`; 0: none).
+    deferred : bool
+        Deferred commitment (default False: table 13.1's commitment at the first sighting): a landmark first seen
+        beyond the confirmation range :math:`r^*` (:attr:`confirm_range`) is tentative: far sightings that fit it
+        update it, but its first sighting within :math:`r^*` re-initialises it from that sighting alone, so that
+        two landmarks merged while seen from far are told apart when the robot comes close.
+    separation_m : float
+        :math:`d` [m]: the distance between two landmarks that a sighting within :math:`r^*` tells apart.
+    split_tentative : bool
+        A provisional landmark that two sightings of one camera frame both fit splits in two (default False): it is
+        re-initialised from the sighting it was given, the other starts a landmark (:func:`splitting_sightings`).
     """
 
     filter: FastSLAMParams = field(default_factory=FastSLAMParams)
@@ -109,6 +148,9 @@ class AssociationParams(Params):
     log_odds_cap_sightings: float = 5.0
     inherit_radius: float = 1.0
     merge_radius: float = 0.5
+    deferred: bool = False
+    separation_m: float = 0.2
+    split_tentative: bool = False
 
     def __post_init__(self):
         if not isinstance(self.filter, FastSLAMParams):
@@ -128,10 +170,19 @@ class AssociationParams(Params):
         if not 0.0 < self.clutter_probability < self.detection_probability < 1.0:
             raise ValueError(f"need 0 < clutter_probability < detection_probability < 1, got "
                              f"{self.clutter_probability!r}, {self.detection_probability!r}")
+        if not (math.isfinite(self.separation_m) and self.separation_m > 0):
+            raise ValueError(f"separation_m must be > 0, got {self.separation_m!r}")
         if not (0 < self.fov <= math.pi and 0 <= self.min_range < self.max_range):
             raise ValueError(f"need 0 < fov <= pi and 0 <= min_range < max_range, got {self.fov}, "
                              f"{self.min_range}, {self.max_range}")
 
+    @property
+    def confirm_range(self) -> float:
+        """:math:`r^*` [m] of deferred commitment (:func:`confirmation_range` with this filter's :math:`R`,
+        ``separation_m`` and the gate :math:`d_0^2` = ``new_landmark_chi2``); ``inf`` when ``deferred`` is off."""
+        if not self.deferred:
+            return math.inf
+        return confirmation_range(self.filter.measurement_cov, self.separation_m, self.new_landmark_chi2)
 
     def rules(self) -> "Rules":
         """The settings as the compiled kernels take them (:class:`Rules`)."""
@@ -147,7 +198,8 @@ class AssociationParams(Params):
                      drift_cap_s=float(self.drift_cap_s), min_count=int(self.proposal_min_count),
                      new_max_range=float(self.new_max_range),
                      log_odds_cap=float(self.log_odds_cap_sightings) * log_odds_seen,
-                     inherit_radius=float(self.inherit_radius))
+                     inherit_radius=float(self.inherit_radius), confirm_range=float(self.confirm_range),
+                     split=bool(self.split_tentative))
 
 
 class MapParticles(NamedTuple):
@@ -156,7 +208,8 @@ class MapParticles(NamedTuple):
     poses (M, 3); mu (M, Kmax, 2); sigma (M, Kmax, 2, 2); n (M,) landmarks held;
     ident (M, Kmax) identity of each landmark; seen, missed (M, Kmax) counts; evidence (M, Kmax): the
     sightings counted as independent, :math:`\\sum\\beta` (:func:`associate_particle`);
-    last_t, first_t (M, Kmax) times of the last and the first sighting [s]; logw (M,).
+    last_t, first_t (M, Kmax) times of the last and the first sighting [s]; committed (M, Kmax): seen within
+    the confirmation range :math:`r^*` (``AssociationParams.deferred``; always True without it); logw (M,).
     """
 
     poses: np.ndarray
@@ -170,6 +223,7 @@ class MapParticles(NamedTuple):
     log_odds: np.ndarray
     last_t: np.ndarray
     first_t: np.ndarray
+    committed: np.ndarray
     logw: np.ndarray
 
 
@@ -183,7 +237,7 @@ def initial_particles(n_particles: int, max_landmarks: int, x0) -> MapParticles:
                         n=np.zeros(M, dtype=np.int64), ident=np.full((M, K), -1, dtype=np.int64),
                         seen=np.zeros((M, K), dtype=np.int64), missed=np.zeros((M, K), dtype=np.int64),
                         evidence=np.zeros((M, K)), log_odds=np.zeros((M, K)), last_t=np.zeros((M, K)),
-                        first_t=np.zeros((M, K)), logw=np.zeros(M))
+                        first_t=np.zeros((M, K)), committed=np.ones((M, K), dtype=np.bool_), logw=np.zeros(M))
 
 
 class Rules(NamedTuple):
@@ -208,7 +262,9 @@ class Rules(NamedTuple):
     new_max_range: float
     log_odds_cap: float
     inherit_radius: float
+    confirm_range: float
+    split: bool
 
 
-__all__ = ["ASSOCIATION_RULES", "INDEPENDENT", "GREEDY", "JOINT", "AssociationParams", "MapParticles",
-           "initial_particles", "Rules"]
+__all__ = ["ASSOCIATION_RULES", "INDEPENDENT", "GREEDY", "JOINT", "confirmation_range", "AssociationParams",
+           "MapParticles", "initial_particles", "Rules"]

@@ -26,6 +26,7 @@ def add_landmark(P, m, z, R, ident, t):
     P.evidence[m, k] = 1.0
     P.last_t[m, k] = t
     P.first_t[m, k] = t
+    P.committed[m, k] = True  # (apply_associations clears it for a far sighting under deferred commitment)
     P.n[m] = k + 1
     return k
 
@@ -46,6 +47,7 @@ def remove_landmark(P, m, k):
         P.log_odds[m, k] = P.log_odds[m, last]
         P.last_t[m, k] = P.last_t[m, last]
         P.first_t[m, k] = P.first_t[m, last]
+        P.committed[m, k] = P.committed[m, last]
     P.ident[m, last] = -1
     P.n[m] = last
 
