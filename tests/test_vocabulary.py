@@ -28,8 +28,6 @@ KNOWN_DUPLICATES: set[str] = {
     "main",  # python -m entry points (``python -m fastslam_edu.datasets.fetch`` ...): the conventional name, kept
     "propagate",  # core.motion's is the deterministic g(x, u); landmark/particle_set.py's samples step 1 (its owner)
     "initialise_landmark",  # core/ekf.py (teaching) and landmark/fastslam_step.py (compiled): the filter engine's owner
-    "drift_covariance",  # the filter's and the smoother's association (smoother_association*.py, being split)
-    "existence_log_odds",  # the filter's and the smoother's association (smoother_association*.py, being split)
 }
 
 #: Modules whose docstrings still give landmark shapes with K (being edited by others in issue 30).

@@ -276,7 +276,7 @@ def splitting_sightings(P, m, instant, slot, rules):
         if k < 0 or P.evidence[m, k] >= rules.n_confirm:
             continue
         for j in range(n):
-            if j != i and slot[j] < 0 and ekf_innovation(P.poses[m], z[j], R[j], P.mu[m, k], P.sigma[m, k])[9] \
+            if j != i and slot[j] < 0 and ekf_innovation(P.poses[m], z[j], R[j], P.mu[m, k], P.sigma[m, k]).d2 \
                     <= rules.new_chi2:
                 split[i] = True
     return split

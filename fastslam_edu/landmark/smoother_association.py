@@ -83,7 +83,7 @@ from fastslam_edu.landmark.smoother_association_model import (INFEASIBLE, OUTLIE
                                                               compact, fit_landmark, fit_map, penalised_cost,
                                                               prepare_log, sighting_poses, tempering_of)
 from fastslam_edu.landmark.smoother_association_solve import levenberg_marquardt_schur
-from fastslam_edu.landmark.smoother_association_moves import (consistent_pairs, existence_log_odds, loop_candidates,
+from fastslam_edu.landmark.smoother_association_moves import (consistent_pairs, loop_candidates,
                                                               loop_closures, maximum_clique, merge_moves,
                                                               prune_landmarks, split_moves, two_clusters)
 
@@ -147,7 +147,8 @@ def assign_sightings(log: SightingLog, poses, landmarks, cov, settings: Smoother
     measurement with covariance :math:`G R G^\\top`; later sightings given to it update it by the EKF at their fixed
     pose.
 
-    ``pose_cov`` (n, 3, 3): the uncertainty of each sighting's pose (:func:`drift_covariance`; None: none).
+    ``pose_cov`` (n, 3, 3): the uncertainty of each sighting's pose (:func:`dead_reckoned_pose_covariance`; None:
+    none).
     Returns ``(labels (n,), landmarks (N', 2), cov (N', 2, 2))``, N' >= N.
     """
     lms, cov = [np.asarray(l, dtype=float) for l in landmarks], [np.asarray(c, dtype=float) for c in cov]
@@ -294,7 +295,7 @@ def poses_between(steps, key_steps, key_poses, path) -> np.ndarray:
     return compose(key_poses[at], relative(path[key_steps[at]], path[steps]))
 
 
-def drift_covariance(log: SightingLog, solved_until: float) -> np.ndarray:
+def dead_reckoned_pose_covariance(log: SightingLog, solved_until: float) -> np.ndarray:
     """The covariance (n, 3, 3) of each sighting's pose when it is dead-reckoned from the last pose solved, at
     ``solved_until`` [s]: :math:`\\mathrm{diag}(\\sigma_v^2, \\sigma_v^2, \\sigma_\\omega^2)\\,\\Delta t`, the motion
     noise's densities over the :math:`\\Delta t` since (zero for the poses solved)."""
@@ -326,7 +327,7 @@ def grown_start(log: SightingLog, settings: SmootherAssociationParams, sensor=No
         n_steps = max(int(np.searchsorted(t, end, side="right")), 2)
         sub = prepare_log(truncated(stream, n_steps), log.params, log.x0, sensor)
         poses = poses_between(sub.keys, key_steps, key_poses, log.path)
-        drift = drift_covariance(sub, stream.t[key_steps[-1]]) if len(key_steps) > 1 else None
+        drift = dead_reckoned_pose_covariance(sub, stream.t[key_steps[-1]]) if len(key_steps) > 1 else None
         labels, lms, c = assign_sightings(sub, poses, landmarks, cov, settings, drift)
         state = _settle(sub, poses, labels, lms, settings)
         key_steps, key_poses = sub.keys, state.poses
@@ -335,7 +336,7 @@ def grown_start(log: SightingLog, settings: SmootherAssociationParams, sensor=No
         landmarks, cov = landmarks[keep], cov[keep]
     poses = poses_between(log.keys, key_steps, key_poses, log.path)
     labels, landmarks, _ = assign_sightings(log, poses, landmarks, cov, settings,
-                                            drift_covariance(log, stream.t[key_steps[-1]]))
+                                            dead_reckoned_pose_covariance(log, stream.t[key_steps[-1]]))
     return poses, labels, landmarks
 
 
@@ -428,6 +429,6 @@ def smooth_association(stream: EventStream, filter_result, params: FastSLAMParam
 __all__ = ["OUTLIER", "INFEASIBLE", "SightingLog", "prepare_log", "sighting_poses", "SmootherAssociationParams",
            "SmootherAssociationResult", "fit_landmark", "fit_map", "penalised_cost", "tempering_of", "mahalanobis_d2",
            "frame_costs", "assign_frame", "assign_sightings", "compact", "solve_labelled", "two_clusters",
-           "split_moves", "merge_moves", "prune_landmarks", "existence_log_odds", "maximum_clique", "loop_candidates",
+           "split_moves", "merge_moves", "prune_landmarks", "maximum_clique", "loop_candidates",
            "consistent_pairs", "loop_closures", "alternate", "grown_start", "reassigned_start", "starts_from_filter",
            "smooth_association"]

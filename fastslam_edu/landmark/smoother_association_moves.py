@@ -102,9 +102,9 @@ def merge_moves(log: SightingLog, poses, labels, landmarks, cov, beta, *, settin
     return labels, merged
 
 
-def existence_log_odds(log: SightingLog, poses, labels, landmarks) -> np.ndarray:
+def whole_log_existence_log_odds(log: SightingLog, poses, labels, landmarks) -> np.ndarray:
     """The log odds (N,) that each landmark is real rather than clutter, as the filter's negative evidence
-    (:func:`fastslam_edu.landmark.association.existence_log_odds`, over the whole log and unclamped):
+    (:func:`fastslam_edu.landmark.landmark_existence.existence_log_odds`, over the whole log, unclamped):
     :math:`n_{hit} \\log(p_D/p_F) + n_{miss} \\log((1-p_D)/(1-p_F))`, with :math:`n_{hit}` the camera frames that
     see it and :math:`n_{miss}` those that see something but not it while it is in view (within the field of view and
     the range of the filter's ``AssociationParams``, from the frame's pose). Another robot standing somewhere for a
@@ -125,10 +125,10 @@ def existence_log_odds(log: SightingLog, poses, labels, landmarks) -> np.ndarray
 
 def prune_landmarks(log: SightingLog, poses, labels, landmarks, d2, beta, *, settings: SmootherAssociationParams):
     """Landmarks whose sightings, left out, cost less than the landmark, :math:`\\sum_i \\beta_i (g - d^2_i) \\le
-    \\lambda`, or whose existence log odds (:func:`existence_log_odds`) are not positive: their sightings become
-    outliers. Returns ``(labels, pruned)``."""
+    \\lambda`, or whose existence log odds (:func:`whole_log_existence_log_odds`) are not positive: their
+    sightings become outliers. Returns ``(labels, pruned)``."""
     labels = labels.copy()
-    odds = existence_log_odds(log, poses, labels, landmarks)
+    odds = whole_log_existence_log_odds(log, poses, labels, landmarks)
     pruned = 0
     for j in range(int(labels.max(initial=-1)) + 1):
         i = np.flatnonzero(labels == j)
@@ -234,5 +234,5 @@ def loop_closures(log: SightingLog, labels, landmarks, cov, settings: SmootherAs
     return labels
 
 
-__all__ = ["two_clusters", "split_moves", "merge_moves", "existence_log_odds", "prune_landmarks", "maximum_clique",
-           "loop_candidates", "consistent_pairs", "loop_closures"]
+__all__ = ["two_clusters", "split_moves", "merge_moves", "whole_log_existence_log_odds", "prune_landmarks",
+           "maximum_clique", "loop_candidates", "consistent_pairs", "loop_closures"]
