@@ -20,7 +20,7 @@ from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.grid.gridslam import (GridSLAMParams, GridSLAMResult, ancestral_path, grid_for_path, odometry_of_run,
                                         scan_beams)
 from fastslam_edu.grid.motion import increment_noise_std
-from fastslam_edu.grid.scan_matching import correlation_kernel
+from fastslam_edu.grid.scan_matching import correlation_weights
 from fastslam_edu.grid.occupancy import OccupancyGrid
 from fastslam_edu.grid.rays import bresenham
 
@@ -120,7 +120,7 @@ def run_grid_slam_loop(log, params: GridSLAMParams, rng: np.random.Generator, *,
     template = grid_for_path(odo[:n], params)
     g = LoopGrid(params, tuple(template.origin), template.resolution, template.shape,
                  tuple(float(v) for v in sensor_offset))
-    offsets, weights = correlation_kernel(params.hit_sigma, g.resolution)
+    offsets, weights = correlation_weights(params.hit_sigma, g.resolution)
     kernel = list(zip(offsets.tolist(), weights.tolist()))
     per_particle = params.maps == "particles"
 

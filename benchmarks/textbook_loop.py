@@ -15,7 +15,7 @@ It consumes the random numbers in the same order as the package's filter
 (:mod:`fastslam_edu.landmark.fastslam`, whose step is the compiled per-particle kernel of
 :mod:`fastslam_edu.landmark.fastslam_step`), so both give the same result for the same
 seed: ``tests/test_fastslam_loop.py`` checks the kernel against this code, which
-uses the textbook numpy EKF (:func:`fastslam_edu.core.ekf.update_landmark_one`, itself
+uses the textbook numpy EKF (:func:`fastslam_edu.core.ekf.update_landmark_textbook`, itself
 checked against filterpy) and the vectorised motion model. The speed benchmark
 uses it as a yardstick of the machine (``benchmarks/fastslam_mrclam.py``).
 """
@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.core.ekf import initialise_landmark, innovation_statistics, update_landmark_one
-from fastslam_edu.landmark.evidence import tempering_exponents_of
+from fastslam_edu.core.ekf import initialise_landmark, innovation_statistics, update_landmark_textbook
+from fastslam_edu.landmark.evidence import tempering_exponents
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 from fastslam_edu.landmark.gate import Gate
 from fastslam_edu.landmark.segments import measurement_segments
@@ -61,14 +61,14 @@ def update_particle(p: Particle, z, j: int, R, *, update_map: bool = True, gate_
     then re-initialised from the new sighting at no cost in weight (one of its
     two sightings is wrong). The measurements no particle explains never get
     here (:func:`is_explained`). ``beta`` β: the weight grows by β · log N(ν; 0, Q)
-    (:func:`fastslam_edu.landmark.evidence.tempering_exponents_of`).
+    (:func:`fastslam_edu.landmark.evidence.tempering_exponents`).
     """
     if j not in p.landmarks:
         p.landmarks[j] = initialise_landmark(p.pose, z, R)
         p.count[j] = 1
         return
     mu, sigma = p.landmarks[j]
-    mu_new, sigma_new, loglik = update_landmark_one(mu, sigma, p.pose, z, R)
+    mu_new, sigma_new, loglik = update_landmark_textbook(mu, sigma, p.pose, z, R)
     loglik *= beta
     if gate_chi2 is not None:
         _, d2 = innovation_statistics(mu, sigma, p.pose, z, R)
@@ -113,7 +113,8 @@ def run_fastslam_loop(
         raise ValueError('the loop reference runs mode "slam" or "localize"')
     if params.proposal != "motion":
         raise ValueError("the loop reference is FastSLAM 1.0 only (proposal=\"motion\"); "
-                         "FastSLAM 2.0's one-particle form is fastslam_edu.landmark.proposal.improved_pose_one")
+                         "FastSLAM 2.0's one-particle form is "
+                         "fastslam_edu.landmark.proposal.improved_pose_information_form")
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
     x0 = np.asarray(stream.x0 if x0 is None else x0, dtype=float)
     M = params.n_particles
@@ -132,12 +133,12 @@ def run_fastslam_loop(
         for i, k in enumerate(range(s, e + 1)):
             for m, p in enumerate(particles):
                 p.pose = move(p.pose, u[k], stream.dt[k], params.motion_noise, eps[m, i])
-            path[k] = _weighted_mean_pose(particles, w)
+            path[k] = _combined_pose(particles, w)
         z, lm = stream.measurements_at(e)
         if len(z) == 0:
             continue
         escape = escapes.escaped(stream.t[e], lm)
-        betas = tempering_exponents_of(stream.t[e], lm, last_seen, params.measurement_correlation_s)
+        betas = tempering_exponents(stream.t[e], lm, last_seen, params.measurement_correlation_s)
         explained = np.ones(len(lm), dtype=bool)
         for i, (zi, j, R, beta) in enumerate(zip(z, lm, params.measurement_covariance(z), betas)):
             explained[i] = is_explained(particles, zi, int(j), R, params.gate_chi2)
@@ -155,11 +156,11 @@ def run_fastslam_loop(
             for p in particles:
                 p.logw = 0.0
             w = np.full(M, 1.0 / M)
-        path[e] = _weighted_mean_pose(particles, w)
+        path[e] = _combined_pose(particles, w)
     return particles, path
 
 
-def _weighted_mean_pose(particles: list[Particle], w) -> np.ndarray:
+def _combined_pose(particles: list[Particle], w) -> np.ndarray:
     x = sum(wm * p.pose[0] for p, wm in zip(particles, w))
     y = sum(wm * p.pose[1] for p, wm in zip(particles, w))
     s = sum(wm * np.sin(p.pose[2]) for p, wm in zip(particles, w))

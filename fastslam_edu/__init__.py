@@ -1,5 +1,13 @@
 """fastslam_edu: particle-filter SLAM, one concept per module, in layers, for teaching.
 
+One name per function, and one suffix rule for a concept written twice. The teaching form (numpy, checked
+inputs, what a notebook calls) carries the concept's plain name: ``update_landmark``, ``wrap_angle``,
+``tempering_exponents``. Its compiled twin (numba: one particle or one landmark, loops, often writing into arrays
+it is given) carries the same name plus ``_kernel``: ``update_landmark_kernel``, ``wrap_angle_kernel``,
+``tempering_exponents_kernel``. A compiled function with no teaching twin keeps a plain name (``update_particle``,
+``run_segments``); a second numpy form of a concept is named for its own job (``update_landmark_textbook``,
+``improved_pose_information_form``), never with a twin's suffix. ``tests/test_vocabulary.py`` checks the rule.
+
 core            the building blocks
     angles          wrapping angles to (-pi, pi]
     se2             SE(2) poses: compose, inverse, relative; poses interpolated in time; least-squares alignment

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from fastslam_edu.core.ekf import ekf_initialise
+from fastslam_edu.core.ekf import initialise_landmark_kernel
 from fastslam_edu.core.motion import MotionNoise
 from fastslam_edu.core.measurement import range_bearing
 from fastslam_edu.datasets.log import EventStream
@@ -51,7 +51,7 @@ def test_confirmation_range_is_where_the_filter_gate_parts_a_pair(factor, outsid
     d2 = []
     for r in (r_star, factor * r_star):
         mu, sigma = np.zeros(2), np.zeros((2, 2))
-        ekf_initialise(pose, np.array([r, 0.0]), R, mu, sigma)
+        initialise_landmark_kernel(pose, np.array([r, 0.0]), R, mu, sigma)
         z = range_bearing(pose, np.array([[r, 0.2]]))[0]
         d2.append(association_loglik(pose, z, R, mu, sigma, np.zeros((3, 3)), 0.0, rules)[1])
     assert d2[0] == pytest.approx(16.0, rel=0.02)

@@ -14,13 +14,13 @@ from scipy.stats import multivariate_normal
 from fastslam_edu.core.ekf import (
     gaussian_log_likelihood,
     initialise_landmark,
-    ekf_initialise,
+    initialise_landmark_kernel,
     Innovation,
-    ekf_innovation,
-    ekf_update,
+    innovation_statistics_kernel,
+    update_landmark_kernel,
     innovation_statistics,
     update_landmark,
-    update_landmark_one,
+    update_landmark_textbook,
 )
 
 # -- random EKF cases ------------------------------------------------------------------------
@@ -149,7 +149,7 @@ def test_batched_equals_textbook(cases):
     (mu, Sigma, x, z, R), _ = cases
     mu_new, Sigma_new, loglik = update_landmark(mu, Sigma, x, z, R)
     for i in range(len(mu)):
-        m1, S1, l1 = update_landmark_one(mu[i], Sigma[i], x[i], z[i], R[i])
+        m1, S1, l1 = update_landmark_textbook(mu[i], Sigma[i], x[i], z[i], R[i])
         np.testing.assert_allclose(mu_new[i], m1, rtol=0, atol=1e-12)
         np.testing.assert_allclose(Sigma_new[i], S1, rtol=0, atol=1e-12)
         assert abs(loglik[i] - l1) < 1e-12
@@ -166,20 +166,20 @@ def test_batched_over_particles_and_measurements():
     assert out[0].shape == (M, n, 2) and out[1].shape == (M, n, 2, 2) and out[2].shape == (M, n)
     for i in range(M):
         for k in range(n):
-            m1, S1, l1 = update_landmark_one(mu[i, k], Sigma[i, k], pose[i], z[i, k], R[0])
+            m1, S1, l1 = update_landmark_textbook(mu[i, k], Sigma[i, k], pose[i], z[i, k], R[0])
             np.testing.assert_allclose(out[0][i, k], m1, rtol=0, atol=1e-12)
             np.testing.assert_allclose(out[1][i, k], S1, rtol=0, atol=1e-12)
             assert abs(out[2][i, k] - l1) < 1e-12 * max(1.0, abs(l1))
 
 
 def test_the_compiled_kernels_one_landmark_at_a_time(cases):
-    """ekf_innovation's Q and d² against Q = H Σ Hᵀ + R written out; ekf_update against the textbook
-    update_landmark_one; beyond the gate, μ and Σ are left exactly as they were; ekf_initialise against
-    initialise_landmark (the inverse model, numpy)."""
+    """innovation_statistics_kernel's Q and d² against Q = H Σ Hᵀ + R written out; update_landmark_kernel against
+    update_landmark_textbook; beyond the gate, μ and Σ are left exactly as they were; initialise_landmark_kernel
+    against initialise_landmark (the inverse model, numpy)."""
     (mu, Sigma, x, z, R), _ = cases
     Sigma = 0.5 * (Sigma + Sigma.transpose(0, 2, 1))  # the filter stores exactly symmetric Σ
     for i in range(len(mu)):
-        innovation = ekf_innovation(x[i], z[i], R[i], mu[i], Sigma[i])
+        innovation = innovation_statistics_kernel(x[i], z[i], R[i], mu[i], Sigma[i])
         assert isinstance(innovation, Innovation) and len(innovation) == 11
         nu0, nu1, q00, q01, q11 = innovation.nu0, innovation.nu1, innovation.q00, innovation.q01, innovation.q11
         d2, loglik = innovation.d2, innovation.loglik
@@ -190,18 +190,18 @@ def test_the_compiled_kernels_one_landmark_at_a_time(cases):
         np.testing.assert_allclose([[q00, q01], [q01, q11]], Q, rtol=1e-12, atol=1e-15)
         nu = np.array([nu0, nu1])
         assert math.isclose(d2, nu @ np.linalg.solve(Q, nu), rel_tol=1e-9)
-        mu_book, Sigma_book, loglik_book = update_landmark_one(mu[i], Sigma[i], x[i], z[i], R[i])
+        mu_book, Sigma_book, loglik_book = update_landmark_textbook(mu[i], Sigma[i], x[i], z[i], R[i])
         m, S = mu[i].copy(), Sigma[i].copy()
-        assert ekf_update(x[i], z[i], R[i], m, S, math.inf) == (d2, loglik)
+        assert update_landmark_kernel(x[i], z[i], R[i], m, S, math.inf) == (d2, loglik)
         np.testing.assert_allclose(m, mu_book, rtol=0, atol=1e-12)
         np.testing.assert_allclose(S, Sigma_book, rtol=0, atol=1e-12)
         assert abs(loglik - loglik_book) < 1e-12 * max(1.0, abs(loglik_book))
         m, S = mu[i].copy(), Sigma[i].copy()
-        ekf_update(x[i], z[i], R[i], m, S, 0.99 * d2)  # an outlier: left alone, bitwise
+        update_landmark_kernel(x[i], z[i], R[i], m, S, 0.99 * d2)  # an outlier: left alone, bitwise
         np.testing.assert_array_equal(m, mu[i])
         np.testing.assert_array_equal(S, Sigma[i])
         m, S = np.empty(2), np.empty((2, 2))
-        ekf_initialise(x[i], z[i], R[i], m, S)
+        initialise_landmark_kernel(x[i], z[i], R[i], m, S)
         m_ref, S_ref = initialise_landmark(x[i], z[i], R[i])
         np.testing.assert_allclose(m, m_ref, rtol=0, atol=1e-12)
         np.testing.assert_allclose(S, S_ref, rtol=1e-12, atol=1e-18)
@@ -432,8 +432,8 @@ def test_asymmetric_covariance_is_refused():
         update_landmark(mu, np.array([[1.0, 0.5], [0.3, 1.0]]), x, z, R)
 
 
-def test_update_landmark_one_refuses_batches():
+def test_update_landmark_textbook_refuses_batches():
     """The teaching version takes one landmark; a batch is refused with a pointer to update_landmark."""
     mu, Sigma, x, z, R = random_cases(np.random.default_rng(16), 2)
     with pytest.raises(ValueError, match="one landmark only"):
-        update_landmark_one(mu, Sigma, x, z, R[0])
+        update_landmark_textbook(mu, Sigma, x, z, R[0])

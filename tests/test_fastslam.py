@@ -6,7 +6,7 @@ Independent references used here:
   with matching filter noise: landmark and path errors against the truth, and
   dead reckoning (the odometry integrated with :func:`fastslam_edu.core.motion.propagate`,
   written out here) as the baseline the filter must beat;
-* the textbook one-landmark EKF :func:`fastslam_edu.core.ekf.update_landmark_one`
+* the textbook one-landmark EKF :func:`fastslam_edu.core.ekf.update_landmark_textbook`
   (``np.linalg.inv`` and ``(I - K H) Σ``) for what one update must give;
 * closed forms: the effective sample size ``1 / Σ w²``, the circular mean of two
   headings ``α ± δ``, the mixture covariance ``Σ w (Σ_m + μ_m μ_mᵀ) - μ̄ μ̄ᵀ``;
@@ -33,9 +33,9 @@ from fastslam_edu.landmark import particle_set
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.datasets.events import groundtruth_at
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.core.ekf import update_landmark_one
+from fastslam_edu.core.ekf import update_landmark_textbook
 from fastslam_edu.landmark.fastslam import FastSLAMParams, run_fastslam
-from fastslam_edu.landmark.evidence import tempering_exponents_of
+from fastslam_edu.landmark.evidence import tempering_exponents
 from fastslam_edu.landmark.gate import Gate
 from fastslam_edu.landmark.hooks import Hook, Kidnap, Monitor
 from fastslam_edu.landmark.particle_set import (ParticleSet, combined_heading, combined_map, combined_pose,
@@ -126,11 +126,11 @@ def _assert_sibling_unchanged(parent: ParticleSet, out: ParticleSet, gate: float
     d = true_m - pose0[:2]
     z = np.array([np.hypot(*d), wrap_angle(np.arctan2(d[1], d[0]) - pose0[2])])
     update_with_measurement(out, z, 0, R_SIM, gate_chi2=gate)
-    exp0 = update_landmark_one(mu0, sig0, pose0, z, R_SIM)
+    exp0 = update_landmark_textbook(mu0, sig0, pose0, z, R_SIM)
     np.testing.assert_allclose(out.mu[0, 0], exp0[0], atol=1e-10)
     np.testing.assert_allclose(out.sigma[0, 0], exp0[1], atol=1e-10)
     if gate is None:
-        exp1 = update_landmark_one(mu0, sig0, out.poses[1], z, R_SIM)
+        exp1 = update_landmark_textbook(mu0, sig0, out.poses[1], z, R_SIM)
         np.testing.assert_allclose(out.mu[1, 0], exp1[0], atol=1e-10)
         np.testing.assert_allclose(out.sigma[1, 0], exp1[1], atol=1e-10)
     else:  # an outlier for offspring 1: its landmark must stay the parent's
@@ -202,7 +202,7 @@ def test_update_with_measurement_initialises_then_matches_the_textbook_ekf():
     z2 = np.array([2.05, 0.38])
     update_with_measurement(ps, z2, 0, R_SIM, gate_chi2=None)
     for m in range(3):
-        mu_e, sig_e, logw_e = update_landmark_one(mu[m], sig[m], poses[m], z2, R_SIM)
+        mu_e, sig_e, logw_e = update_landmark_textbook(mu[m], sig[m], poses[m], z2, R_SIM)
         np.testing.assert_allclose(ps.mu[m, 0], mu_e, atol=1e-12)
         np.testing.assert_allclose(ps.sigma[m, 0], sig_e, atol=1e-12)
         assert ps.logw[m] == pytest.approx(logw_e, abs=1e-10)
@@ -409,7 +409,7 @@ def _gate_world():
 
 
 def _textbook(ps, z):
-    return [update_landmark_one(ps.mu[m, 0], ps.sigma[m, 0], ps.poses[m], z, R_SIM) for m in range(len(ps))]
+    return [update_landmark_textbook(ps.mu[m, 0], ps.sigma[m, 0], ps.poses[m], z, R_SIM) for m in range(len(ps))]
 
 
 def test_gate_rejects_what_no_particle_explains():
@@ -492,12 +492,12 @@ def test_gate_escape_starts_exactly_escape_s_after_the_first_unexplained_sightin
 def test_evidence_fractions_closed_form():
     """β = min(1, Δt/τ), Δt since the previous sighting of the same landmark; first sightings count fully."""
     last = np.full(4, -np.inf)
-    np.testing.assert_array_equal(tempering_exponents_of(10.0, [0, 2], last, 4.0), [1.0, 1.0])
-    np.testing.assert_allclose(tempering_exponents_of(11.0, [0, 1], last, 4.0), [0.25, 1.0])
-    np.testing.assert_allclose(tempering_exponents_of(19.0, [2, 0], last, 4.0), [1.0, 1.0])
-    np.testing.assert_allclose(tempering_exponents_of(19.5, [2], last, 4.0), [0.125])
+    np.testing.assert_array_equal(tempering_exponents(10.0, [0, 2], last, 4.0), [1.0, 1.0])
+    np.testing.assert_allclose(tempering_exponents(11.0, [0, 1], last, 4.0), [0.25, 1.0])
+    np.testing.assert_allclose(tempering_exponents(19.0, [2, 0], last, 4.0), [1.0, 1.0])
+    np.testing.assert_allclose(tempering_exponents(19.5, [2], last, 4.0), [0.125])
     np.testing.assert_array_equal(last, [19.0, 11.0, 19.5, -np.inf])
-    np.testing.assert_array_equal(tempering_exponents_of(20.0, [2, 3], last, None), [1.0, 1.0])
+    np.testing.assert_array_equal(tempering_exponents(20.0, [2, 3], last, None), [1.0, 1.0])
 
 
 @pytest.mark.parametrize("beta", [1.0, 0.25, 0.0])

@@ -106,7 +106,7 @@ def compare(stream, params, landmarks=None, seed=7, *, loop_params=None, loop_se
 def test_engine_equals_loop_reference(world, case):
     data, stream = world
     noise, mode, thr, gate, resampler, slope = case
-    # tempered likelihoods (tempering_exponents_of) with resampling at every step, where they decide the selection;
+    # tempered likelihoods (tempering_exponents) with resampling at every step, where they decide the selection;
     # with N_eff < M/2 the textbook weights (the short simulated log would not resample with tempered ones)
     tau = 4.0 if thr == 1.0 else None
     params = FastSLAMParams(n_particles=M, motion_noise=noise, measurement_cov=R, mode=mode,

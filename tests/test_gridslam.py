@@ -14,7 +14,7 @@ from fastslam_edu.grid.rays import bresenham, ray_cells_batch
 from grid_loop import run_grid_slam_loop  # benchmarks/grid_loop.py, the loop reference
 from fastslam_edu.grid.gridslam import GridSLAMParams, ancestral_path, run_grid_slam
 from fastslam_edu.grid.motion import increment_noise_std, sample_odometry_motion
-from fastslam_edu.grid.scan_matching import correlation, correlation_kernel, endpoint_cells, hit_field, scan_match
+from fastslam_edu.grid.scan_matching import correlation, correlation_weights, endpoint_cells, hit_field, scan_match
 from fastslam_edu.evaluation.relations import reference_errors
 from fastslam_edu.datasets.sim_laser import simulate_laser_world
 
@@ -80,7 +80,7 @@ def test_correlation_without_kernel_equals_the_grid_module(world):
 def test_graded_correlation_by_brute_force():
     rng = np.random.default_rng(2)
     g = random_grid(rng, p_occ=0.05)
-    off, wts = correlation_kernel(0.1, 0.1)
+    off, wts = correlation_weights(0.1, 0.1)
     assert off.tolist()[0] == [0, 0] and wts[0] == 1.0 and len(off) == 13  # disc of radius 2 cells
     assert np.all(wts * 256 == np.round(wts * 256))
     pts = rng.uniform([-1.3, -2.3], [4.3, 2.3], size=(3, 40, 2))
@@ -299,5 +299,5 @@ def test_bad_input_is_rejected(world):
 def test_writeup_preset_is_the_writeup_rule():
     p = GridSLAMParams.writeup()
     assert (p.hit_sigma, p.temperature, p.resample_threshold, p.match_iterations, p.maps) == (0.0, 1.0, 1.0, 0, "best")
-    assert correlation_kernel(p.hit_sigma, p.resolution)[0].tolist() == [[0, 0]]
+    assert correlation_weights(p.hit_sigma, p.resolution)[0].tolist() == [[0, 0]]
     assert GridSLAMParams.writeup(n_particles=7).n_particles == 7

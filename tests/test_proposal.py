@@ -6,7 +6,7 @@ Independent references used here:
   drawn noise): the end pose's sample mean and covariance against
   :func:`segment_motion`'s linearisation (noise small enough to be linear);
 * the paper's information form :math:`\\Sigma_x = (G^\\top Q^{-1} G + P^{-1})^{-1}`
-  (:func:`improved_pose_one`, ``np.linalg.inv`` of 3×3 matrices) against the Kalman
+  (:func:`improved_pose_information_form`, ``np.linalg.inv`` of 3×3 matrices) against the Kalman
   form of the engine;
 * Monte Carlo of the perturbed-observation draw against :math:`\\mathcal N(\\mu_x, \\Sigma_x)`;
 * Monte Carlo of the marginal likelihood :math:`\\int \\mathcal N(z; h(x, \\mu), Q)\\,
@@ -35,7 +35,7 @@ from fastslam_edu.core.measurement import range_bearing
 from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.landmark.proposal import (
     improved_pose,
-    improved_pose_one,
+    improved_pose_information_form,
     motion_prediction,
     sample_improved_poses,
     segment_motion,
@@ -102,14 +102,14 @@ def _case(rng):
 
 
 def test_kalman_form_equals_the_information_form():
-    """improved_pose (Kalman gain, engine) = improved_pose_one (the paper's inverse of information)."""
+    """improved_pose (Kalman gain, engine) = improved_pose_information_form (the paper's inverse of information)."""
     rng = np.random.default_rng(3)
     for _ in range(20):
         x_bar, P, mu, Sigma, z = _case(rng)
         # with no perturbation and the sample at the prediction, the draw is the proposal's mean
         x, x_bar_new, P_new, loglik, _ = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None],
                                                        z=z, R=R, eps=np.zeros((1, 2)))
-        mu_x, Sigma_x, log_w = improved_pose_one(x_bar, P, mu, Sigma, z, R)
+        mu_x, Sigma_x, log_w = improved_pose_information_form(x_bar, P, mu, Sigma, z, R)
         np.testing.assert_allclose(x_bar_new[0], mu_x, atol=1e-10)
         np.testing.assert_allclose(x[0], [mu_x[0], mu_x[1], wrap_angle(mu_x[2])], atol=1e-10)
         np.testing.assert_allclose(P_new[0], Sigma_x, atol=1e-12)
@@ -124,7 +124,7 @@ def test_a_sighting_never_widens_the_pose_gaussian(seed):
     x_bar, P, mu, Sigma, z = _case(np.random.default_rng(seed))
     _, x_bar_new, P_new, loglik, _ = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None], z=z, R=R,
                                                    eps=np.zeros((1, 2)))
-    mu_x, Sigma_x, log_w = improved_pose_one(x_bar, P, mu, Sigma, z, R)
+    mu_x, Sigma_x, log_w = improved_pose_information_form(x_bar, P, mu, Sigma, z, R)
     np.testing.assert_allclose(P_new[0], P_new[0].T, atol=0)
     assert np.linalg.eigvalsh(P_new[0]).min() > 0
     assert np.linalg.eigvalsh(P - P_new[0]).min() > -1e-12
@@ -134,8 +134,8 @@ def test_a_sighting_never_widens_the_pose_gaussian(seed):
 
 
 def test_kalman_form_equals_the_information_form_across_the_bearing_cut():
-    """A landmark behind the robot, sighting and prediction on either side of ±π: improved_pose = improved_pose_one
-    (which takes the innovation from measurement.innovation); the bearing residual is 0.02 rad, not 2π − 0.02."""
+    """A landmark behind the robot, sighting and prediction on either side of ±π: improved_pose =
+    improved_pose_information_form (which takes the innovation from measurement.innovation); the bearing residual is 0.02 rad, not 2π − 0.02."""
     x_bar = np.array([0.2, -0.1, 0.0])
     P = np.diag([0.02, 0.02, 0.03]) ** 2
     mu = np.array([-2.8, -0.08])  # bearing just under π
@@ -145,7 +145,7 @@ def test_kalman_form_equals_the_information_form_across_the_bearing_cut():
     assert np.sign(z[1]) != np.sign(range_bearing(x_bar, mu)[1])  # the case straddles the cut
     x, x_bar_new, _, loglik, d2 = improved_pose(x_bar[None], x_bar[None], P[None], mu[None], Sigma[None], z=z, R=R,
                                                 eps=np.zeros((1, 2)))
-    mu_x, _, log_w = improved_pose_one(x_bar, P, mu, Sigma, z, R)
+    mu_x, _, log_w = improved_pose_information_form(x_bar, P, mu, Sigma, z, R)
     np.testing.assert_allclose(x_bar_new[0], mu_x, atol=1e-10)
     np.testing.assert_allclose(x[0], [mu_x[0], mu_x[1], wrap_angle(mu_x[2])], atol=1e-10)
     assert loglik[0] == pytest.approx(log_w, abs=1e-9)
@@ -171,7 +171,7 @@ def test_the_perturbation_has_the_innovation_covariance_when_it_is_correlated():
     D = (x[1:] - x[0]).T  # (3, 2)
     Q = H @ Sigma @ H.T + Rs
     assert abs(Q[0, 1]) / np.sqrt(Q[0, 0] * Q[1, 1]) > 0.5  # the case is correlated
-    _, Sigma_x, _ = improved_pose_one(x_bar, P, mu, Sigma, z, Rs)
+    _, Sigma_x, _ = improved_pose_information_form(x_bar, P, mu, Sigma, z, Rs)
     K = Sigma_x @ G.T @ np.linalg.inv(Q)
     np.testing.assert_allclose(D @ D.T, K @ Q @ K.T, rtol=1e-8, atol=1e-14)
 
@@ -189,7 +189,7 @@ def test_the_perturbed_observation_draws_the_proposal():
     stack = lambda a: np.broadcast_to(a, (n,) + a.shape)  # noqa: E731
     x, *_ = improved_pose(x_hat, stack(x_bar), stack(P), stack(mu), stack(Sigma), z=z, R=R,
                           eps=rng.standard_normal((n, 2)))
-    mu_x, Sigma_x, _ = improved_pose_one(x_bar, P, mu, Sigma, z, R)
+    mu_x, Sigma_x, _ = improved_pose_information_form(x_bar, P, mu, Sigma, z, R)
     se = np.sqrt(np.diag(Sigma_x) / n)
     assert np.all(np.abs(x.mean(axis=0) - mu_x) < 4 * se + 1e-4)
     C = np.cov(x.T)
@@ -205,7 +205,7 @@ def test_weight_is_the_likelihood_with_the_pose_integrated_out():
     P = np.diag([0.03, 0.03, 0.02]) ** 2
     Sigma = np.diag([0.05, 0.04]) ** 2
     z = range_bearing(x_bar, mu) + [0.05, 0.03]
-    _, _, log_w = improved_pose_one(x_bar, P, mu, Sigma, z, R)
+    _, _, log_w = improved_pose_information_form(x_bar, P, mu, Sigma, z, R)
     x = x_bar + rng.standard_normal((400_000, 3)) @ np.linalg.cholesky(P).T
     nu = z - range_bearing(x, mu)
     nu[:, 1] = wrap_angle(nu[:, 1])
@@ -249,7 +249,8 @@ def test_the_update_weighs_with_the_fastslam2_weight():
     ps = _set()
     z = range_bearing(np.zeros(3), [3.0, 1.0]) + [0.02, 0.01]
     x_bar, P = _prediction(ps)
-    expected = np.array([improved_pose_one(x_bar[m], P[m], ps.mu[m, 0], ps.sigma[m, 0], z, R)[2] for m in range(3)])
+    expected = np.array([improved_pose_information_form(x_bar[m], P[m], ps.mu[m, 0], ps.sigma[m, 0], z, R)[2]
+                         for m in range(3)])
     before = ps.logw.copy()
     proposal_loglik = _run_sampler(ps, z, [0])
     assert not np.allclose(ps.poses, x_bar)  # the poses moved
@@ -260,7 +261,7 @@ def test_the_update_weighs_with_the_fastslam2_weight():
 
 def test_two_landmarks_at_one_instant_weigh_one_after_the_other():
     """Sightings of landmarks 0 and 1 together: the weight is log N of the first plus log N of the second
-    under the pose Gaussian (μ_x, Σ_x) the first left (improved_pose_one twice), none of FastSLAM 1.0's
+    under the pose Gaussian (μ_x, Σ_x) the first left (improved_pose_information_form twice), none of FastSLAM 1.0's
     weights at the final poses."""
     ps = _set()
     ps.mu[:, 1] = [1.0, 3.0]
@@ -272,8 +273,8 @@ def test_two_landmarks_at_one_instant_weigh_one_after_the_other():
     x_bar, P = _prediction(ps)
     expected = []
     for m in range(3):
-        mu1, S1, w1 = improved_pose_one(x_bar[m], P[m], ps.mu[m, 0], ps.sigma[m, 0], z[0], R)
-        _, _, w2 = improved_pose_one(mu1, S1, ps.mu[m, 1], ps.sigma[m, 1], z[1], R)
+        mu1, S1, w1 = improved_pose_information_form(x_bar[m], P[m], ps.mu[m, 0], ps.sigma[m, 0], z[0], R)
+        _, _, w2 = improved_pose_information_form(mu1, S1, ps.mu[m, 1], ps.sigma[m, 1], z[1], R)
         expected.append(w1 + w2)
     before = ps.logw.copy()
     proposal_loglik = _run_sampler(ps, z, [0, 1])

@@ -358,13 +358,13 @@ def test_negative_positions_never_select_a_leading_zero_weight_particle():
 
 
 @pytest.mark.parametrize("seed, m", [(0, 1), (1, 7), (2, 100), (3, 1000)])
-def test_roulette_indices_counted_equal_the_sorted_positions(seed, m):
-    """roulette_indices (the compiled run's roulette: offspring counted, no sort) draws the same indices as
+def test_roulette_kernel_counted_equal_the_sorted_positions(seed, m):
+    """roulette_kernel (the compiled run's roulette: offspring counted, no sort) draws the same indices as
     roulette (sorted positions, then the inverse CDF) from the same random stream, weights with zeros included."""
     w = np.random.default_rng(seed).exponential(size=m) * (np.arange(m) % 3 != 1)
     if w.sum() == 0:
         w[0] = 1.0
     w /= w.sum()
-    counted = rs.roulette_indices(w, np.random.default_rng(seed + 10))
+    counted = rs.roulette_kernel(w, np.random.default_rng(seed + 10))
     np.testing.assert_array_equal(counted, rs.roulette(w, np.random.default_rng(seed + 10)))
     assert (np.diff(counted) >= 0).all() and (w[counted] > 0).all()

@@ -31,6 +31,6 @@ def wrap_angle(a):
 
 
 @njit(cache=True, inline="always")
-def wrap_one(a):
+def wrap_angle_kernel(a):
     """:func:`wrap_angle` of one angle ``a`` [rad], compiled (for the filter's per-particle kernels)."""
     return a - 2.0 * math.pi * math.ceil((a - math.pi) / (2.0 * math.pi))

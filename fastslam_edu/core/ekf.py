@@ -28,11 +28,26 @@ symbol     shape    meaning
 
 The batched functions accept any leading dimensions ``...`` (particles, or
 particles × measurements) that broadcast against each other; the 2×2 inverses
-and determinants are written out in closed form. The update itself is
-:func:`ekf_update`, compiled (numba) and written for one landmark of one
-particle, entry by entry; the filter's per-particle step calls it directly.
-:func:`update_landmark_one` is the same update written line by line like the
-textbook, with numpy's 2×2 matrices.
+and determinants are written out in closed form.
+
+One concept, two forms, one suffix (the package's rule, :mod:`fastslam_edu`): the teaching
+form carries the concept's name, its compiled twin the same name plus ``_kernel``:
+
+==============================  ====================================  ===============
+teaching form (numpy, checked)  compiled twin (numba, one landmark)   table 13.1
+==============================  ====================================  ===============
+:func:`initialise_landmark`     :func:`initialise_landmark_kernel`    lines 7–9
+:func:`innovation_statistics`   :func:`innovation_statistics_kernel`  lines 12–14, 18
+:func:`update_landmark`         :func:`update_landmark_kernel`        lines 12–18
+==============================  ====================================  ===============
+
+The kernels write into the arrays they are given, entry by entry; the filter's
+per-particle step calls them directly, and :func:`update_landmark` runs
+:func:`update_landmark_kernel` on each landmark of a batch. The update has a third
+form with a job of its own: :func:`update_landmark_textbook`, the same numbers
+written line by line like the textbook, with numpy's 2×2 matrices and
+``np.linalg.inv`` (to read next to the table, and the independent reference
+the tests hold the other two to).
 """
 
 from __future__ import annotations
@@ -43,7 +58,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.angles import wrap_one
+from fastslam_edu.core.angles import wrap_angle_kernel
 from fastslam_edu.core.checks import finite_array
 
 from fastslam_edu.core.measurement import (
@@ -273,9 +288,9 @@ def update_landmark(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 @njit(cache=True)
 def _update_each(x, z, R, mu, Sigma, log_likelihood):
-    """:func:`ekf_update` for each of n landmarks in a row (arrays (n, ...)), in place."""
+    """:func:`update_landmark_kernel` for each of n landmarks in a row (arrays (n, ...)), in place."""
     for i in range(mu.shape[0]):
-        log_likelihood[i] = ekf_update(x[i], z[i], R[i], mu[i], Sigma[i], math.inf)[1]
+        log_likelihood[i] = update_landmark_kernel(x[i], z[i], R[i], mu[i], Sigma[i], math.inf)[1]
 
 
 # ---------------------------------------------------------------- compiled, one landmark of one particle
@@ -292,14 +307,14 @@ def expected_measurement(pose, m):
     dy = m[1] - pose[1]
     q = dx * dx + dy * dy
     r = math.sqrt(q)
-    phi = wrap_one(math.atan2(dy, dx) - pose[2])
+    phi = wrap_angle_kernel(math.atan2(dy, dx) - pose[2])
     inv_r = 1.0 / r  # one division, then products
     inv_q = inv_r * inv_r
     return r, phi, dx * inv_r, dy * inv_r, -dy * inv_q, dx * inv_q
 
 
 @njit(cache=True, inline="always")
-def ekf_initialise(pose, z, R, mu, sigma):
+def initialise_landmark_kernel(pose, z, R, mu, sigma):
     """Lines 7–9: ``mu`` (2,) and ``sigma`` (2, 2) of a landmark seen for the first time, in place.
 
     :math:`\\mu = h^{-1}(x, z) = (x + r\\cos(\\phi+\\theta),\\ y + r\\sin(\\phi+\\theta))` and
@@ -318,7 +333,7 @@ def ekf_initialise(pose, z, R, mu, sigma):
 
 
 class Innovation(NamedTuple):
-    """What :func:`ekf_innovation` computes for one landmark (lines 12–14 and 18), entry by entry.
+    """What :func:`innovation_statistics_kernel` computes for one landmark (lines 12–14 and 18), entry by entry.
 
     ``nu0, nu1``: :math:`\\nu = z - \\hat z` [m, rad] (bearing wrapped); ``h00 … h11``:
     :math:`H = \\partial h/\\partial m`; ``q00, q01, q11``: :math:`Q = H\\Sigma H^\\top + R` (symmetric:
@@ -340,7 +355,7 @@ class Innovation(NamedTuple):
 
 
 @njit(cache=True, inline="always")
-def ekf_innovation(pose, z, R, mu, sigma):
+def innovation_statistics_kernel(pose, z, R, mu, sigma):
     """Lines 12–14 and 18: innovation, its covariance and likelihood for one landmark, as an :class:`Innovation`.
 
     :math:`\\nu = z - \\hat z` (bearing wrapped), :math:`H`, :math:`Q = H\\Sigma H^\\top + R` (symmetric),
@@ -355,21 +370,21 @@ def ekf_innovation(pose, z, R, mu, sigma):
     q11 = p10 * h10 + p11 * h11 + R[1, 1]
     det_q = q00 * q11 - q01 * q01
     nu0 = z[0] - r
-    nu1 = wrap_one(z[1] - phi)
+    nu1 = wrap_angle_kernel(z[1] - phi)
     d2 = (q11 * nu0 * nu0 - 2.0 * q01 * nu0 * nu1 + q00 * nu1 * nu1) / det_q
     loglik = -0.5 * d2 - LOG_2PI - 0.5 * math.log(det_q)
     return Innovation(nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, loglik)
 
 
 @njit(cache=True, inline="always")
-def ekf_update(pose, z, R, mu, sigma, gate_chi2):
+def update_landmark_kernel(pose, z, R, mu, sigma, gate_chi2):
     """Lines 12–18: the EKF update of one landmark (``mu`` (2,), ``sigma`` (2, 2), in place).
 
     :math:`K = \\Sigma H^\\top Q^{-1}`, :math:`\\mu \\mathrel{+}= K\\nu`, :math:`\\Sigma = (I - KH)\\Sigma`
     (kept exactly symmetric), unless :math:`d^2 >` ``gate_chi2`` (``inf``: always).
-    Returns ``(d2, loglik)`` of :func:`ekf_innovation`, computed before the update.
+    Returns ``(d2, loglik)`` of :func:`innovation_statistics_kernel`, computed before the update.
     """
-    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, loglik = ekf_innovation(pose, z, R, mu, sigma)
+    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, loglik = innovation_statistics_kernel(pose, z, R, mu, sigma)
     if d2 > gate_chi2:
         return d2, loglik
     det_q = q00 * q11 - q01 * q01
@@ -389,11 +404,14 @@ def ekf_update(pose, z, R, mu, sigma, gate_chi2):
     return d2, loglik
 
 
-def update_landmark_one(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, float]:
-    """The same EKF update for ONE landmark, written like FastSLAM_1 lines 12–18.
+def update_landmark_textbook(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, float]:
+    """The same EKF update for ONE landmark, written line by line like FastSLAM_1 lines 12–18.
 
-    The teaching version of :func:`update_landmark`: plain 2×2 numpy,
-    ``np.linalg.inv`` and the textbook covariance ``(I − K H) Σ``.
+    :func:`update_landmark` with a different job: to be read next to the table (plain
+    2×2 numpy, ``np.linalg.inv`` and the textbook covariance ``(I − K H) Σ``), and to be
+    the independent reference that :func:`update_landmark` and :func:`update_landmark_kernel`
+    (closed-form inverses, entries written out) are tested against. Hence its own name,
+    not a twin's suffix.
 
     Parameters
     ----------
@@ -415,7 +433,7 @@ def update_landmark_one(mu, Sigma, x, z, R) -> tuple[np.ndarray, np.ndarray, flo
     log_w : float
         ``log`` of line 18's weight ``w = |2πQ|^(−½) exp(−½ νᵀ Q⁻¹ ν)``.
     """
-    caller = "update_landmark_one"
+    caller = "update_landmark_textbook"
     mu = finite_array("mu", mu, caller, (2,))
     Sigma = finite_array("Sigma", Sigma, caller, (2, 2))
     x = finite_array("x", x, caller, (3,))

@@ -378,7 +378,8 @@ def segment_increments(x, u, dt, noise: MotionNoise, eps):
     and the step moves the robot by ``Δs_j (cos θ_j, sin θ_j)`` (plus, for noise
     on the state, ``σ_xy √Δt (ε₁, ε₂)``). The poses are running sums of these
     displacements: :func:`move_segment` takes them; the filter, which needs only
-    weighted means, runs the same steps one particle at a time (:func:`fastslam_edu.landmark.fastslam_step.sample_segment`).
+    weighted means, runs the same steps one particle at a time
+    (:func:`fastslam_edu.landmark.fastslam_step.propagate_segment_kernel`).
 
     Parameters are those of :func:`move_segment` (unchecked: ``x`` (M, 3),
     ``u`` (L, 2), ``dt`` (L,), ``eps`` (M, L, noise.n_draws)).

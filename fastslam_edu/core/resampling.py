@@ -61,9 +61,9 @@ __all__ = [
     "validate_weights",
     "cumulative_weights",
     "inverse_cdf",
-    "inverse_cdf_unchecked",
+    "inverse_cdf_kernel",
     "roulette_positions",
-    "roulette_indices",
+    "roulette_kernel",
     "stratified_positions",
     "systematic_positions",
     "roulette",
@@ -179,11 +179,11 @@ def inverse_cdf(u, w) -> np.ndarray:
     ndarray of intp, shape (n,)
         Indices in ``0 … M-1``.
     """
-    return inverse_cdf_unchecked(np.asarray(u, dtype=float).reshape(-1), validate_weights(w))
+    return inverse_cdf_kernel(np.asarray(u, dtype=float).reshape(-1), validate_weights(w))
 
 
 @njit(cache=True)
-def inverse_cdf_unchecked(u, w):
+def inverse_cdf_kernel(u, w):
     """:func:`inverse_cdf` for weights already validated, compiled: the resamplers here and the
     filter's compiled run (:func:`fastslam_edu.landmark.fastslam_step.resampling_indices`) share it."""
     c = np.cumsum(w)
@@ -199,17 +199,17 @@ def roulette_positions(n, rng):
 
 
 @njit(cache=True)
-def roulette_indices(w, rng):
+def roulette_kernel(w, rng):
     """:func:`roulette` with ``n = M`` for validated weights ``w`` (M,), compiled, without a sort.
 
     The inverse CDF :math:`i(u) = \\min\\{i : c_i > u\\}` never decreases as :math:`u` grows, so the
     indices of the *unsorted* positions, put in increasing order, are those of the sorted positions:
     each particle's offspring are counted, then written out in particle order (:math:`O(M)`, the same
-    numbers as ``inverse_cdf_unchecked(roulette_positions(M, rng), w)``; numba compiles a loop in a
+    numbers as ``inverse_cdf_kernel(roulette_positions(M, rng), w)``; numba compiles a loop in a
     fraction of the time it takes for ``np.sort``).
     """
     m = w.shape[0]
-    drawn = inverse_cdf_unchecked(rng.random(m), w)
+    drawn = inverse_cdf_kernel(rng.random(m), w)
     offspring = np.zeros(m, dtype=np.int64)
     for i in drawn:
         offspring[i] += 1
@@ -253,7 +253,7 @@ def _resample(w, rng, n, positions) -> np.ndarray:
     """Check the arguments, draw the ``positions(n, rng)`` and return the :func:`inverse_cdf` of them."""
     _check_rng(rng)
     w = validate_weights(w)
-    return inverse_cdf_unchecked(positions(_number_of_draws(n, w.size), rng), w)
+    return inverse_cdf_kernel(positions(_number_of_draws(n, w.size), rng), w)
 
 
 def roulette(w, rng: np.random.Generator, n: int | None = None) -> np.ndarray:

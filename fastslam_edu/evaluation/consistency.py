@@ -35,7 +35,7 @@ from scipy.stats import chi2
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.landmark.fastslam import FastSLAMParams
 from fastslam_edu.landmark.particle_set import combined_map
-from fastslam_edu.landmark.fastslam_step import pose_covariance as compiled_pose_covariance, weighted_mean_pose
+from fastslam_edu.landmark.fastslam_step import combined_pose_kernel, pose_covariance as compiled_pose_covariance
 from fastslam_edu.datasets.sim import SimConfig
 
 __all__ = [
@@ -121,7 +121,7 @@ def pose_mean_and_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean and covariance of a particle cloud of poses.
 
     :math:`\\bar x = \\sum_m w^{[m]} x^{[m]}` with the circular mean for the heading
-    (:func:`fastslam_edu.landmark.fastslam_step.weighted_mean_pose`), and
+    (:func:`fastslam_edu.landmark.fastslam_step.combined_pose_kernel`), and
     :math:`P = \\sum_m w^{[m]} \\delta^{[m]} \\delta^{[m]\\top}` with
     :math:`\\delta^{[m]} = x^{[m]} - \\bar x`, its heading wrapped: a cloud that
     straddles θ = ±π has a small variance, not one of π². The inputs are checked here; the sums are
@@ -146,7 +146,7 @@ def pose_mean_and_covariance(poses, w) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"pose_mean_and_covariance: w must be non-negative and sum to 1, sum is {w.sum()!r}")
     x, w = np.ascontiguousarray(x), np.ascontiguousarray(w)
     mean = np.empty(3)
-    weighted_mean_pose(x, w, mean)
+    combined_pose_kernel(x, w, mean)
     return mean, compiled_pose_covariance(x, w)
 
 

@@ -74,7 +74,7 @@ from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.se2 import compose_increments, transform_points
 from fastslam_edu.core.weights import effective_sample_size, normalise_log_weights
 from fastslam_edu.grid.motion import sample_odometry_motion
-from fastslam_edu.grid.scan_matching import correlation, correlation_kernel, endpoint_cells, scan_match
+from fastslam_edu.grid.scan_matching import correlation, correlation_weights, endpoint_cells, scan_match
 
 __all__ = [
     "map_from_poses",
@@ -135,7 +135,7 @@ class GridSLAMParams(Params):
         A cell counts as occupied in the correlation when ``l > occupied_logodds``
         (0: ``p > 0.5``).
     hit_sigma : float
-        Width σ [m] of the graded correlation (:func:`fastslam_edu.grid.scan_matching.correlation_kernel`); 0 is
+        Width σ [m] of the graded correlation (:func:`fastslam_edu.grid.scan_matching.correlation_weights`); 0 is
         the write-up's count of endpoints on occupied cells.
     min_range, max_range : float, float or None
         Beams outside ``[min_range, max_range]`` [m] are not used (neither for
@@ -467,7 +467,7 @@ class GridRun:
         r, a = first_scan
         grid.update(x0, scan_endpoints(x0, r, a, off), sensor_offset=off)
         run = cls(params=params, grid=grid, offset=off,
-                  kernel=correlation_kernel(params.hit_sigma, grid.resolution) if params.hit_sigma > 0 else None,
+                  kernel=correlation_weights(params.hit_sigma, grid.resolution) if params.hit_sigma > 0 else None,
                   particles=np.tile(x0, (m, 1)), logw=np.full(m, -math.log(m)),
                   maps=np.repeat(grid.log_odds.astype(np.float32)[None], m, axis=0) if params.maps == "particles"
                   else None, parent_idx=np.arange(m), hist=np.empty((n, m, 3)),

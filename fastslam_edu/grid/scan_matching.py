@@ -2,7 +2,7 @@
 
 A particle's scan, projected from its pose, lands its beam endpoints ``y_b`` in cells of the map; the
 *map correlation* counts those on occupied cells (:func:`correlation`, the grid filter's weight), optionally
-graded by a kernel so that an endpoint next to a wall earns part of the point (:func:`correlation_kernel`).
+graded by a kernel so that an endpoint next to a wall earns part of the point (:func:`correlation_weights`).
 
 Scan matching
 -------------
@@ -27,7 +27,7 @@ from fastslam_edu.grid.occupancy import OccupancyGrid, cell_values
 if TYPE_CHECKING:  # only for the annotations: gridslam imports this module
     from fastslam_edu.grid.gridslam import GridSLAMParams
 
-__all__ = ["endpoint_cells", "correlation_kernel", "correlation", "hit_field", "scan_match"]
+__all__ = ["endpoint_cells", "correlation_weights", "correlation", "hit_field", "scan_match"]
 
 
 # --------------------------------------------------------------------------- map correlation
@@ -55,8 +55,11 @@ def endpoint_cells(grid: OccupancyGrid, points) -> tuple[np.ndarray, np.ndarray]
     return row, col
 
 
-def correlation_kernel(hit_sigma: float, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+def correlation_weights(hit_sigma: float, resolution: float) -> tuple[np.ndarray, np.ndarray]:
     """Neighbour offsets and weights ``g(δ) = exp(−‖δ‖² res² / (2 σ²))`` of the graded correlation.
+
+    The correlation's kernel in the mathematical sense (the suffix ``_kernel`` is kept for compiled twins,
+    see :mod:`fastslam_edu`).
 
     Offsets ``δ = (Δrow, Δcol)`` cover the disc ``‖δ‖ ≤ r = ⌈2σ / res⌉`` cells;
     ``σ = 0`` gives the single offset ``(0, 0)`` with weight 1 (the write-up's rule).
@@ -70,7 +73,7 @@ def correlation_kernel(hit_sigma: float, resolution: float) -> tuple[np.ndarray,
         whatever order its beams are summed in (vectorised or loop).
     """
     if not (math.isfinite(hit_sigma) and hit_sigma >= 0):
-        raise ValueError(f"correlation_kernel: hit_sigma must be ≥ 0, got {hit_sigma}")
+        raise ValueError(f"correlation_weights: hit_sigma must be ≥ 0, got {hit_sigma}")
     r = int(math.ceil(2.0 * hit_sigma / resolution - 1e-9)) if hit_sigma > 0 else 0
     d = np.arange(-r, r + 1)
     offsets = np.array([(a, b) for a in d for b in d if a * a + b * b <= r * r], dtype=np.int64).reshape(-1, 2)
@@ -90,7 +93,7 @@ def correlation(log_odds, rows, cols, threshold: float = 0.0, kernel=None) -> np
 
         c^{[i]} = Σ_b o(cell(y_b^{[i]})),   o(cell) = 1[l(cell) > threshold]
 
-    With a kernel (:func:`correlation_kernel`) an endpoint near an occupied
+    With a kernel (:func:`correlation_weights`) an endpoint near an occupied
     cell earns part of the point: ``c^{[i]} = Σ_b max_δ g(δ) o(cell(y_b^{[i]}) + δ)``
     — a cheap stand-in for the likelihood field of Thrun et al. (ch. 6.4),
     which makes the score a smooth function of the pose instead of a
@@ -141,7 +144,7 @@ def hit_field(log_odds, threshold: float, kernel, window) -> np.ndarray:
     threshold : float
         ``o(cell) = 1[l > threshold]``; cells outside the grid have ``o = 0``.
     kernel : (offsets (D, 2), weights (D,)) or None
-        :func:`correlation_kernel` (None: ``f = o``).
+        :func:`correlation_weights` (None: ``f = o``).
     window : (r0, r1, c0, c1)
         Rows ``r0 … r1 − 1`` and columns ``c0 … c1 − 1`` (may extend beyond the grid).
 
@@ -224,7 +227,7 @@ def scan_match(particles, log_odds, grid: OccupancyGrid, ranges, angles, params:
     m = len(pose)
     if params.match_iterations == 0 or len(ranges) == 0:
         return pose
-    kernel = correlation_kernel(params.hit_sigma, grid.resolution) if params.hit_sigma > 0 else None
+    kernel = correlation_weights(params.hit_sigma, grid.resolution) if params.hit_sigma > 0 else None
     # the scan in the robot frame, once: o + r_b (cos α_b, sin α_b); a candidate pose then costs no trigonometry per beam
     local = np.asarray(sensor_offset, dtype=float) + np.column_stack([ranges * np.cos(angles), ranges * np.sin(angles)])
     ends = transform_points(pose[:, None, :], local)  # (M, B, 2)

@@ -7,9 +7,9 @@ sees a barcode. For every sighting :math:`z` and every particle :math:`m`:
    :math:`\\mathcal N(z - \\hat z_j; 0, Q_j)` of each landmark :math:`j` the particle
    holds, and the likelihood :math:`p_0` of a landmark never seen before. The
    most likely hypothesis wins: an existing landmark is updated by its EKF
-   (:func:`fastslam_edu.core.ekf.ekf_update`) and the weight grows by the
+   (:func:`fastslam_edu.core.ekf.update_landmark_kernel`) and the weight grows by the
    log-likelihood the decision was made with; if :math:`p_0` wins a new landmark is
-   initialised (:func:`fastslam_edu.core.ekf.ekf_initialise`) and the weight grows by
+   initialised (:func:`fastslam_edu.core.ekf.initialise_landmark_kernel`) and the weight grows by
    :math:`\\log p_0`. Sightings from ``min_range`` to ``new_max_range`` start landmarks; negative
    evidence checks them once they are within ``max_range``.
 2. **Mutual exclusion**: within one camera frame two sightings are two different
@@ -86,7 +86,7 @@ With FastSLAM 2.0's proposal (``filter.proposal = "fastslam2"``,
 :func:`associate_particle_improved`), the association is decided at the motion
 prediction :math:`\\bar x` with its covariance added to :math:`Q`, and the sightings
 of landmarks seen before then move the pose by the proposal
-(:func:`fastslam_edu.landmark.proposal.improved_pose_into`).
+(:func:`fastslam_edu.landmark.proposal.improved_pose_kernel`).
 """
 from __future__ import annotations
 
@@ -97,20 +97,20 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.ekf import ekf_initialise, ekf_innovation, ekf_update
+from fastslam_edu.core.ekf import initialise_landmark_kernel, innovation_statistics_kernel, update_landmark_kernel
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association_history import best_history, merge_copies
 from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
 from fastslam_edu.landmark.association_params import (INDEPENDENT, JOINT, AssociationParams, MapParticles,
                                                       initial_particles)
-from fastslam_edu.landmark.fastslam_step import (copy_order, copy_row, is_increasing, motion_prediction_of,
+from fastslam_edu.landmark.fastslam_step import (copy_order, copy_row, is_increasing, motion_prediction_through_segment,
                                                  move_through_segment, normalise_weights, pose_covariance,
-                                                 resampling_indices, segment_normals, weighted_mean_pose)
+                                                 resampling_indices, segment_normals, combined_pose_kernel)
 from fastslam_edu.landmark.joint_compatibility import joint_slots
 from fastslam_edu.landmark.landmark_existence import (add_landmark, existence_log_odds, negative_evidence,
                                                      retire_landmarks)
-from fastslam_edu.landmark.proposal import improved_pose_into
+from fastslam_edu.landmark.proposal import improved_pose_kernel
 from fastslam_edu.landmark.segments import measurement_segments, stream_commands
 from fastslam_edu.landmark.step_records import RESAMPLER_CODES, Log, Settings
 
@@ -185,7 +185,7 @@ def associate_particle_improved(P, m, instant, rules, next_ident, out, predictio
     """The same with FastSLAM 2.0's proposal: the association is decided at the motion prediction
     ``prediction = (x_bar (3,), cov (3, 3))`` with its covariance (:func:`choose_landmarks`); then each sighting
     assigned to a landmark seen at least ``rules.min_count`` times moves the particle's pose by the proposal
-    (:func:`fastslam_edu.landmark.proposal.improved_pose_into`, in the sightings' order) and weighs it by
+    (:func:`fastslam_edu.landmark.proposal.improved_pose_kernel`, in the sightings' order) and weighs it by
     :math:`\\mathcal N(z; \\hat z(\\bar x), S)`; :func:`apply_associations` then updates the map from the new pose."""
     z, R, t = instant
     x_bar, cov = prediction[0].copy(), prediction[1].copy()
@@ -196,7 +196,7 @@ def associate_particle_improved(P, m, instant, rules, next_ident, out, predictio
         if k < 0 or P.seen[m, k] < rules.min_count:
             continue
         e[0], e[1] = rng.standard_normal(), rng.standard_normal()
-        _, lls[i] = improved_pose_into(P.poses[m], x_bar, cov, P.mu[m, k], P.sigma[m, k], z[i], R[i], e)
+        _, lls[i] = improved_pose_kernel(P.poses[m], x_bar, cov, P.mu[m, k], P.sigma[m, k], z[i], R[i], e)
     apply_associations(P, m, instant, (slot, lls), rules, next_ident, out)
 
 
@@ -254,10 +254,10 @@ def measure_landmark(P, m, k, z, R, rules, fresh):
     possibly two landmarks seen as one, is then forgotten; its identity, counts and evidence stay."""
     near = z[0] <= rules.confirm_range
     if fresh or (near and not P.committed[m, k]):
-        ekf_initialise(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k])
+        initialise_landmark_kernel(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k])
         P.committed[m, k] = near
     else:
-        ekf_update(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k], math.inf)
+        update_landmark_kernel(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k], math.inf)
 
 
 @njit(cache=True)
@@ -276,7 +276,7 @@ def splitting_sightings(P, m, instant, slot, rules):
         if k < 0 or P.evidence[m, k] >= rules.n_confirm:
             continue
         for j in range(n):
-            if j != i and slot[j] < 0 and ekf_innovation(P.poses[m], z[j], R[j], P.mu[m, k], P.sigma[m, k]).d2 \
+            if j != i and slot[j] < 0 and innovation_statistics_kernel(P.poses[m], z[j], R[j], P.mu[m, k], P.sigma[m, k]).d2 \
                     <= rules.new_chi2:
                 split[i] = True
     return split
@@ -374,7 +374,7 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
             for m in range(M):
                 associate_particle(P, m, instant, rules, out.next_ident, out.assoc[m, a:b], cloud)
         else:
-            x_bar, cov = motion_prediction_of(x_start, L.u[first:last + 1], L.dt[first:last + 1], s)
+            x_bar, cov = motion_prediction_through_segment(x_start, L.u[first:last + 1], L.dt[first:last + 1], s)
             for m in range(M):
                 associate_particle_improved(P, m, instant, rules, out.next_ident, out.assoc[m, a:b],
                                             (x_bar[m], cov[m]), rng)
@@ -393,7 +393,7 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
             w[:] = 1.0 / M
             out.totals[MAPS_RESAMPLED] += 1
         out.totals[INSTANTS_DONE] += 1
-        weighted_mean_pose(P.poses, w, out.pose_mean[last])
+        combined_pose_kernel(P.poses, w, out.pose_mean[last])
         copy_row(P.poses, np.argmax(w), out.pose_best[last])
     return segments.shape[0]
 

@@ -9,7 +9,7 @@ import math
 
 from numba import njit
 
-from fastslam_edu.core.ekf import LOG_2PI, ekf_innovation, expected_measurement
+from fastslam_edu.core.ekf import LOG_2PI, expected_measurement, innovation_statistics_kernel
 
 
 # ---------------------------------------------------------------- one particle, one sighting
@@ -73,7 +73,7 @@ def innovation_with_pose(pose, z, R, mu, sigma, P, rules):
     """The innovation of one sighting and landmark with the pose covariance ``P`` (3, 3) added:
     ``(nu0, nu1, q00, q01, q11)``, :math:`\\nu` and :math:`Q + H_x P H_x^\\top` (its range variance scaled by
     ``rules.range_scale`` squared)."""
-    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, ll = ekf_innovation(pose, z, R, mu, sigma)
+    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, ll = innovation_statistics_kernel(pose, z, R, mu, sigma)
     a, b, d = pose_term(pose, mu[0], mu[1], P)
     return nu0, nu1, q00 + a - (1.0 - rules.range_scale ** 2) * R[0, 0], q01 + b, q11 + d
 

@@ -6,8 +6,8 @@ independent, they make the filter several times too confident. Each sighting's l
 :math:`\\beta = \\min(1, \\Delta t / \\tau)`
 (:attr:`fastslam_edu.landmark.fastslam.FastSLAMParams.measurement_correlation_s`).
 
-One name for one concept: the tempering exponent β. :func:`tempering_exponents` is the compiled kernel the filter
-runs (it writes β into an array it is given); :func:`tempering_exponents_of` is its teaching form (it returns β).
+One name for one concept: the tempering exponent β. :func:`tempering_exponents` is the teaching form (it returns β);
+:func:`tempering_exponents_kernel` its compiled twin, the one the filter runs (it writes β into an array it is given).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from numba import njit
 
 
 @njit(cache=True)
-def tempering_exponents(t, j, last_seen, tau, beta):
+def tempering_exponents_kernel(t, j, last_seen, tau, beta):
     """Tempering exponents ``beta[i] = min(1, (t - last_seen[j[i]]) / tau)`` (n,) of the sightings of landmarks
     ``j`` (n,) at time ``t`` [s], then ``last_seen[j] = t``; ``tau`` [s] <= 0: all 1 (the textbook)."""
     if tau <= 0.0:
@@ -29,7 +29,7 @@ def tempering_exponents(t, j, last_seen, tau, beta):
         last_seen[j[i]] = t
 
 
-def tempering_exponents_of(t, landmarks, last_seen, tau: float | None) -> np.ndarray:
+def tempering_exponents(t, landmarks, last_seen, tau: float | None) -> np.ndarray:
     """Tempering exponents :math:`\\beta = \\min(1, \\Delta t / \\tau)` of the likelihoods of sightings at time ``t``.
 
     :math:`\\Delta t` is the time since the previous sighting of the same landmark
@@ -53,8 +53,8 @@ def tempering_exponents_of(t, landmarks, last_seen, tau: float | None) -> np.nda
     """
     landmarks = np.asarray(landmarks, dtype=np.int64).reshape(-1)
     beta = np.empty(len(landmarks))
-    tempering_exponents(float(t), landmarks, last_seen, 0.0 if tau is None else float(tau), beta)
+    tempering_exponents_kernel(float(t), landmarks, last_seen, 0.0 if tau is None else float(tau), beta)
     return beta
 
 
-__all__ = ["tempering_exponents", "tempering_exponents_of"]
+__all__ = ["tempering_exponents", "tempering_exponents_kernel"]

@@ -12,7 +12,7 @@ The filter of Montemerlo et al. (2002), in the order of the MR.CLAM write-up's
    updated and the particle's log weight grows by the log-likelihood
    :math:`\\log \\mathcal N(\\nu; 0, Q)` (:func:`fastslam_edu.core.ekf.update_landmark`), times the
    fraction :math:`\\beta \\le 1` of independent evidence the sighting carries
-   (:func:`tempering_exponents_of`; 1 in the textbook).
+   (:func:`tempering_exponents`; 1 in the textbook).
 3. **Resample** (:mod:`fastslam_edu.core.resampling`) when the effective sample size
    :math:`N_\\text{eff} = 1/\\sum_m (w^{[m]})^2` falls below a fraction of
    :math:`M` (default 0.5); weights are reset to uniform afterwards.
@@ -56,8 +56,8 @@ from fastslam_edu.core.params import Params
 from fastslam_edu.core.resampling import get_resampler
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.landmark.evidence import tempering_exponents_of
-from fastslam_edu.landmark.fastslam_step import normalise_weights, run_segments, weigh_instant, weighted_mean_pose
+from fastslam_edu.landmark.evidence import tempering_exponents
+from fastslam_edu.landmark.fastslam_step import combined_pose_kernel, normalise_weights, run_segments, weigh_instant
 from fastslam_edu.landmark.gate import Gate
 from fastslam_edu.landmark.hooks import ProgressBar
 from fastslam_edu.landmark.particle_set import ParticleSet, combined_map
@@ -105,7 +105,7 @@ class FastSLAMParams(Params):
       applied without the gate: the filter is lost, not the sensor.
     * **Tempered likelihoods**: a sighting :math:`\\Delta t` after the previous sighting
       of the same landmark weighs the particles with its likelihood to the power
-      :math:`\\min(1, \\Delta t/\\tau)`, :math:`\\tau = 4` s (:func:`tempering_exponents_of`).
+      :math:`\\min(1, \\Delta t/\\tau)`, :math:`\\tau = 4` s (:func:`tempering_exponents`).
     * **Resampling** when :math:`N_\\text{eff} < M/2`, the usual rule of thumb: it keeps
       the particle diversity that resampling at every step (the write-up's
       choice) throws away.
@@ -137,7 +137,7 @@ class FastSLAMParams(Params):
     measurement_correlation_s : float or None
         :math:`\\tau`: a sighting of a landmark :math:`\\Delta t` seconds after the previous
         sighting of the same landmark weighs the particles with its likelihood to
-        the tempering exponent :math:`\\beta = \\min(1, \\Delta t / \\tau)` (:func:`tempering_exponents_of`): its error
+        the tempering exponent :math:`\\beta = \\min(1, \\Delta t / \\tau)` (:func:`tempering_exponents`): its error
         repeats the previous one's, so it carries only part of an independent
         sighting's evidence. The EKF update of the landmark is unchanged. None:
         every sighting counts fully (the textbook).
@@ -320,7 +320,7 @@ class FilterRun:
         """Steps 2–4 at the measurement step ``e`` (the end of segment ``s..e``) with the compiled run's kernels:
         step 2 and the weights by :func:`~fastslam_edu.landmark.fastslam_step.weigh_instant` (the landmark trees:
         :meth:`weigh_trees`), step 3 here, so that hooks see the parents drawn and the set before
-        (:meth:`Hook.after_resampling`), step 4 by :func:`~fastslam_edu.landmark.fastslam_step.weighted_mean_pose`."""
+        (:meth:`Hook.after_resampling`), step 4 by :func:`~fastslam_edu.landmark.fastslam_step.combined_pose_kernel`."""
         if type(self.particles) is ParticleSet:
             n_eff = weigh_instant(self.particles.arrays(), self.log, self.settings, e, self.rng, self.record,
                                   self.proposal.prediction(self, s, e))
@@ -336,7 +336,7 @@ class FilterRun:
         if parents is not None:
             w[:] = 1.0 / m
             self.record.totals[RESAMPLES] += 1
-        weighted_mean_pose(self.particles.poses, w, self.pose_mean[e])
+        combined_pose_kernel(self.particles.poses, w, self.pose_mean[e])
         self.pose_best[e] = self.particles.poses[int(np.argmax(w))]
 
     def weigh_trees(self, e: int) -> float:
@@ -346,7 +346,7 @@ class FilterRun:
         t, record = self.stream.t[e], self.record
         z, lm = self.stream.measurements_at(e)
         escape = self.gate.escaped(t, lm)
-        beta = tempering_exponents_of(t, lm, self.last_seen, self.params.measurement_correlation_s)
+        beta = tempering_exponents(t, lm, self.last_seen, self.params.measurement_correlation_s)
         R = self.R[self.stream.offsets[e] : self.stream.offsets[e + 1]]
         explained = self.particles.update(z, lm, R, update_map=self.update_map, gate_chi2=self.gate.chi2,
                                           escape=escape, beta=beta)

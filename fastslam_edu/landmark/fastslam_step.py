@@ -10,11 +10,11 @@ where each line is computed::
 
     line 4      x_t^[m] ~ p(x_t | x_{t-1}^[m], u_t)              sample_pose
     line 5      j = c_t, the landmark the sighting is of
-    lines 7-9   landmark j never seen: mu = h^-1(x, z),            ekf.ekf_initialise
+    lines 7-9   landmark j never seen: mu = h^-1(x, z),            ekf.initialise_landmark_kernel
                 Sigma = H^-1 R H^-T
     line 10     w = p0 (the particle's weight is left unchanged)
-    lines 12-14 z_hat = h(mu, x), H = dh/dm, Q = H Sigma H^T + R   ekf.ekf_innovation
-    lines 15-17 K = Sigma H^T Q^-1, mu += K (z - z_hat),           ekf.ekf_update
+    lines 12-14 z_hat = h(mu, x), H = dh/dm, Q = H Sigma H^T + R   ekf.innovation_statistics_kernel
+    lines 15-17 K = Sigma H^T Q^-1, mu += K (z - z_hat),           ekf.update_landmark_kernel
                 Sigma = (I - K H) Sigma
     line 18     w *= |2 pi Q|^(-1/2) exp(-nu^T Q^-1 nu / 2)        (a log weight)
     lines 5-18  for one particle and one sighting                  update_particle
@@ -23,10 +23,10 @@ What real data adds to the table (see :mod:`fastslam_edu.landmark.fastslam`): th
 gate (a sighting that *no* particle explains, :func:`explains`, is set aside), its
 escape (:func:`fastslam_edu.landmark.gate.gate_escapes`, :func:`fastslam_edu.landmark.gate.gate_record`), and
 tempered likelihoods (the log weight grows by :math:`\\beta \\log \\mathcal N`,
-:func:`fastslam_edu.landmark.evidence.tempering_exponents`).
+:func:`fastslam_edu.landmark.evidence.tempering_exponents_kernel`).
 
 The whole run: :func:`run_segments` chains line 4 over each run of odometry steps
-(:func:`sample_segment`) and steps 2–4 at each measurement step (:func:`measure_instant`:
+(:func:`propagate_segment_kernel`) and steps 2–4 at each measurement step (:func:`measure_instant`:
 the update, the weights, resampling when :math:`N_\\text{eff}` is low, the combined pose),
 so that a run over a log returns to Python once, not once per step.
 
@@ -63,13 +63,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.angles import wrap_one
-from fastslam_edu.core.ekf import ekf_initialise, ekf_innovation, ekf_update
-from fastslam_edu.core.resampling import (inverse_cdf_unchecked, roulette_indices, stratified_positions,
-                                          systematic_positions)
-from fastslam_edu.landmark.evidence import tempering_exponents
+from fastslam_edu.core.angles import wrap_angle_kernel
+from fastslam_edu.core.ekf import initialise_landmark_kernel, innovation_statistics_kernel, update_landmark_kernel
+from fastslam_edu.core.resampling import inverse_cdf_kernel, roulette_kernel, stratified_positions, systematic_positions
+from fastslam_edu.landmark.evidence import tempering_exponents_kernel
 from fastslam_edu.landmark.gate import gate_escapes, gate_record
-from fastslam_edu.landmark.proposal import predict_into, sample_improved, segment_motion_into
+from fastslam_edu.landmark.proposal import (motion_prediction_kernel, sample_improved_poses_kernel,
+                                           segment_motion_kernel)
 from fastslam_edu.landmark.step_records import (RESAMPLES, SIGHTINGS_REJECTED, SIGHTINGS_USED, STEPS_DONE,
                                                 Particles, Sightings)
 
@@ -156,11 +156,11 @@ def weighted_mean_xy_heading(x, y, c, s, w, out):
         my += w[m] * y[m]
         mc += w[m] * c[m]
         ms += w[m] * s[m]
-    out[0], out[1], out[2] = mx, my, wrap_one(math.atan2(ms, mc))
+    out[0], out[1], out[2] = mx, my, wrap_angle_kernel(math.atan2(ms, mc))
 
 
 @njit(cache=True)
-def sample_segment(poses, u, dt, noise, eps, w, mean, best):
+def propagate_segment_kernel(poses, u, dt, noise, eps, w, mean, best):
     """Line 4 for every particle through ``L`` odometry steps, recording the estimates on the way.
 
     ``poses`` (M, 3) is moved in place (headings wrapped at the end); ``u`` (L, 2), ``dt``
@@ -184,9 +184,9 @@ def sample_segment(poses, u, dt, noise, eps, w, mean, best):
         exact_large_turns(theta, dtheta, c, s)
         if t < mean.shape[0]:
             weighted_mean_xy_heading(x, y, c, s, w, mean[t])
-            best[t, 0], best[t, 1], best[t, 2] = x[b], y[b], wrap_one(theta[b])
+            best[t, 0], best[t, 1], best[t, 2] = x[b], y[b], wrap_angle_kernel(theta[b])
     for m in range(theta.shape[0]):
-        poses[m, 0], poses[m, 1], poses[m, 2] = x[m], y[m], wrap_one(theta[m])
+        poses[m, 0], poses[m, 1], poses[m, 2] = x[m], y[m], wrap_angle_kernel(theta[m])
 
 
 @njit(cache=True)
@@ -195,7 +195,7 @@ def standard_normals(rng, out):
     holds the numbers of ``rng.standard_normal((M, L, k))[m, t]``.
 
     Each particle's normals are consecutive in the random stream (its whole segment, step by
-    step), and stored by step, the order in which :func:`sample_segment` reads them. Each call
+    step), and stored by step, the order in which :func:`propagate_segment_kernel` reads them. Each call
     unpacks the Generator (a fixed cost), so small segments are left to numpy
     (:func:`fastslam_edu.landmark.particle_set.draw_normals`).
     """
@@ -242,16 +242,17 @@ def update_particle(P, m, s, gate_chi2, update_map):
     """
     j = s.j
     if not P.seen[m, j]:
-        initialise_landmark(P, m, s)
+        initialise_particle_landmark(P, m, s)
         return
     # without update_map, a gate at -inf: the innovation's (d2, loglik), the landmark left alone (one compiled
     # copy of the innovation instead of two)
-    d2, loglik = ekf_update(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j], gate_chi2 if update_map else -math.inf)
+    d2, loglik = update_landmark_kernel(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j],
+                                        gate_chi2 if update_map else -math.inf)
     if not math.isnan(s.loglik[m]):
         loglik = s.loglik[m]
     outlier = d2 > gate_chi2  # the landmark was left alone
     if outlier and update_map and P.count[m, j] == 1:
-        initialise_landmark(P, m, s)  # re-initialised, at no cost in weight
+        initialise_particle_landmark(P, m, s)  # re-initialised, at no cost in weight
         return
     P.logw[m] += s.beta * loglik
     if not outlier:
@@ -259,10 +260,11 @@ def update_particle(P, m, s, gate_chi2, update_map):
 
 
 @njit(cache=True)
-def initialise_landmark(P, m, s):
-    """Lines 7–9: landmark ``s.j`` of particle ``m`` from the inverse model (:func:`fastslam_edu.core.ekf.ekf_initialise`),
-    seen once. (Not inlined: it runs once per landmark and particle, and the update's loop is faster without it.)"""
-    ekf_initialise(P.poses[m], s.z, s.R, P.mu[m, s.j], P.sigma[m, s.j])
+def initialise_particle_landmark(P, m, s):
+    """Lines 7–9: landmark ``s.j`` of particle ``m`` from the inverse model
+    (:func:`fastslam_edu.core.ekf.initialise_landmark_kernel`), seen once. (Not inlined: it runs once per landmark
+    and particle, and the update's loop is faster without it.)"""
+    initialise_landmark_kernel(P.poses[m], s.z, s.R, P.mu[m, s.j], P.sigma[m, s.j])
     P.seen[m, s.j] = True
     P.count[m, s.j] = 1
 
@@ -277,7 +279,8 @@ def explains(P, s, gate_chi2):
     """
     j = s.j
     for m in range(P.poses.shape[0]):
-        if P.seen[m, j] and ekf_innovation(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j]).d2 <= gate_chi2:
+        if P.seen[m, j] and \
+                innovation_statistics_kernel(P.poses[m], s.z, s.R, P.mu[m, j], P.sigma[m, j]).d2 <= gate_chi2:
             return True
     return not P.seen[:, j].any()
 
@@ -304,7 +307,7 @@ def update_particles(P, S, gate_chi2, update_map, explained):
             if apply or not P.seen[m, s.j]:
                 update_particle(P, m, s, chi2, update_map)
             elif update_map and P.count[m, s.j] == 1:  # rejected, but one of two sightings is wrong:
-                initialise_landmark(P, m, s)  # start again
+                initialise_particle_landmark(P, m, s)  # start again
 
 
 # ---------------------------------------------------------------- step 4: weights and the combined pose
@@ -335,7 +338,7 @@ def normalise_weights(logw, w):
 
 
 @njit(cache=True)
-def weighted_mean_pose(poses, w, out):
+def combined_pose_kernel(poses, w, out):
     """:math:`\\bar x = \\sum_m w^{[m]} x^{[m]}` into ``out`` (3,), θ the circular mean (wrapped)."""
     x = y = s = c = 0.0
     for m in range(poses.shape[0]):
@@ -343,22 +346,22 @@ def weighted_mean_pose(poses, w, out):
         y += w[m] * poses[m, 1]
         s += w[m] * math.sin(poses[m, 2])
         c += w[m] * math.cos(poses[m, 2])
-    out[0], out[1], out[2] = x, y, wrap_one(math.atan2(s, c))
+    out[0], out[1], out[2] = x, y, wrap_angle_kernel(math.atan2(s, c))
 
 
 @njit(cache=True)
 def pose_covariance(poses, w):
     """The weighted covariance (3, 3) of the particles' poses ``poses`` (M, 3), ``w`` (M,) normalised:
     :math:`P = \\sum_m w^{[m]} \\delta^{[m]} \\delta^{[m]\\top}`, :math:`\\delta^{[m]} = x^{[m]} - \\bar x` about the mean
-    of :func:`weighted_mean_pose`, the heading difference wrapped (a cloud that straddles θ = ±π has a small
+    of :func:`combined_pose_kernel`, the heading difference wrapped (a cloud that straddles θ = ±π has a small
     variance, not one of π²)."""
     mean = np.zeros(3)
-    weighted_mean_pose(poses, w, mean)
+    combined_pose_kernel(poses, w, mean)
     cov = np.zeros((3, 3))
     e = np.empty(3)
     for m in range(poses.shape[0]):
         e[0], e[1] = poses[m, 0] - mean[0], poses[m, 1] - mean[1]
-        e[2] = wrap_one(poses[m, 2] - mean[2])
+        e[2] = wrap_angle_kernel(poses[m, 2] - mean[2])
         for u in range(3):
             for v in range(3):
                 cov[u, v] += w[m] * e[u] * e[v]
@@ -373,12 +376,12 @@ def resampling_indices(w, rng, code):
     """The particles drawn by resampler ``code`` (:data:`RESAMPLER_CODES`), with the kernels of
     :mod:`fastslam_edu.core.resampling`: positions ``u_j`` (systematic ``(j + U) / M``; stratified
     ``(j + U_j) / M``; roulette ``U_j`` sorted), then the inverse CDF, ``min{i : c_i > u_j}`` (roulette:
-    :func:`fastslam_edu.core.resampling.roulette_indices`, the same indices without a sort)."""
+    :func:`fastslam_edu.core.resampling.roulette_kernel`, the same indices without a sort)."""
     m = w.shape[0]
     if code == 2:  # the same indices, counted instead of sorted (no sort to compile)
-        return roulette_indices(w / np.sum(w), rng)
+        return roulette_kernel(w / np.sum(w), rng)
     u = systematic_positions(m, rng) if code == 0 else stratified_positions(m, rng)
-    return inverse_cdf_unchecked(u, w / np.sum(w))
+    return inverse_cdf_kernel(u, w / np.sum(w))
 
 
 @njit(cache=True, _nrt=False)
@@ -448,9 +451,10 @@ def measure_instant(P, L, s, k, rng, out, prediction):
     combined pose (:func:`resample_and_combine`).
 
     ``P`` :class:`Particles`, ``L`` :class:`Log`, ``s`` :class:`Settings`, ``out`` :class:`Record`;
-    ``prediction``: FastSLAM 2.0's :math:`(\\bar x, P)` ((M, 3), (M, 3, 3), :func:`motion_prediction_of`), or
-    None for FastSLAM 1.0 — then numba drops the proposal's branch before compiling (it prunes a test
-    ``is None`` on an argument), and a FastSLAM 1.0 run never compiles FastSLAM 2.0's kernels.
+    ``prediction``: FastSLAM 2.0's :math:`(\\bar x, P)` ((M, 3), (M, 3, 3),
+    :func:`motion_prediction_through_segment`), or None for FastSLAM 1.0 — then numba drops the proposal's branch
+    before compiling (it prunes a test ``is None`` on an argument), and a FastSLAM 1.0 run never compiles FastSLAM
+    2.0's kernels.
     """
     n_eff = weigh_instant(P, L, s, k, rng, out, prediction)
     resample_and_combine(P, s, k, rng, out, n_eff)
@@ -469,10 +473,10 @@ def weigh_instant(P, L, s, k, rng, out, prediction):
     n = b - a
     escape, beta, explained = np.empty(n, dtype=np.bool_), np.empty(n), np.ones(n, dtype=np.bool_)
     gate_escapes(t, j, out.unexplained_since, s.escape_s, escape)
-    tempering_exponents(t, j, out.last_seen, s.tau, beta)
+    tempering_exponents_kernel(t, j, out.last_seen, s.tau, beta)
     S = Sightings(L.z[a:b], j, L.R[a:b], escape, beta, np.full((P.poses.shape[0], n), np.nan))
     if prediction is not None:  # FastSLAM 2.0: the poses drawn given the sightings too, S.loglik their weights
-        sample_improved(P, S, prediction[0], prediction[1], s.gate_chi2, s.min_count, rng)
+        sample_improved_poses_kernel(P, S, prediction[0], prediction[1], s.gate_chi2, s.min_count, rng)
     update_particles(P, S, s.gate_chi2, s.update_map, explained)
     gate_record(t, j, explained, out.unexplained_since)
     for i in range(n):
@@ -497,18 +501,18 @@ def resample_and_combine(P, s, k, rng, out, n_eff):
         select_in_place(P, resampling_indices(out.w, rng, s.resampler))
         out.w[:] = 1.0 / m
         out.totals[RESAMPLES] += 1
-    weighted_mean_pose(P.poses, out.w, out.pose_mean[k])
+    combined_pose_kernel(P.poses, out.w, out.pose_mean[k])
     copy_row(P.poses, np.argmax(out.w), out.pose_best[k])
 
 
 @njit(cache=True)
-def motion_prediction_of(x_start, u, dt, s):
+def motion_prediction_through_segment(x_start, u, dt, s):
     """FastSLAM 2.0's motion prediction :math:`(\\bar x, P)` through the steps ``u`` (L, 2), ``dt`` (L,) for the
     particles that started at ``x_start`` (M, 3) (:mod:`fastslam_edu.landmark.proposal`)."""
     x_bar, cov = np.empty((x_start.shape[0], 3)), np.empty((x_start.shape[0], 3, 3))
     delta, P_rel = np.empty(3), np.empty((3, 3))
-    segment_motion_into(u, dt, s.noise, s.n_draws == 2, delta, P_rel)
-    predict_into(x_start, delta, P_rel, x_bar, cov)
+    segment_motion_kernel(u, dt, s.noise, s.n_draws == 2, delta, P_rel)
+    motion_prediction_kernel(x_start, delta, P_rel, x_bar, cov)
     return x_bar, cov
 
 
@@ -546,18 +550,18 @@ def move_through_segment(poses, L, s, segment, rng, out, normals, x_start):
             copy_row(poses, i, x_start[i])
     eps = normals[:last - first + 1]
     standard_normals(rng, eps)
-    sample_segment(poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
-                   out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
+    propagate_segment_kernel(poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
+                             out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
     return measured
 
 
 @njit(cache=True)
 def run_segments(P, L, s, segments, rng, out, x_start):
     """Steps 1–4 over ``segments`` (S, 2): runs of steps ``start..end``, each ending at a measurement step
-    or a cut; for each, line 4 for every particle (:func:`sample_segment`), then :func:`measure_instant`.
+    or a cut; for each, line 4 for every particle (:func:`propagate_segment_kernel`), then :func:`measure_instant`.
 
     ``x_start``: None for FastSLAM 1.0; for FastSLAM 2.0 an (M, 3) buffer for the poses each segment
-    starts from, which its proposal conditions on (:func:`motion_prediction_of`). The test ``x_start is
+    starts from, which its proposal conditions on (:func:`motion_prediction_through_segment`). The test ``x_start is
     None`` is decided when numba compiles (one compiled run per proposal, FastSLAM 2.0's kernels only
     when asked for). With no segments (S = 0) nothing runs: the call compiles the run, or loads it from
     numba's cache (:meth:`fastslam_edu.landmark.fastslam.FilterRun.run_compiled` times that apart).
@@ -570,5 +574,6 @@ def run_segments(P, L, s, segments, rng, out, x_start):
         if x_start is None:  # (numba prunes a test on an argument only when it stands alone)
             measure_instant(P, L, s, last, rng, out, None)
         else:
-            prediction = motion_prediction_of(x_start, L.u[first:last + 1], L.dt[first:last + 1], s)
+            prediction = motion_prediction_through_segment(x_start, L.u[first:last + 1], L.dt[first:last + 1],
+                                                           s)
             measure_instant(P, L, s, last, rng, out, prediction)

@@ -10,7 +10,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.ekf import ekf_initialise, expected_measurement
+from fastslam_edu.core.ekf import expected_measurement, initialise_landmark_kernel
 
 
 @njit(cache=True)
@@ -19,7 +19,7 @@ def add_landmark(P, m, z, R, ident, t):
     k = P.n[m]
     if k >= P.mu.shape[1]:
         return -1
-    ekf_initialise(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k])
+    initialise_landmark_kernel(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k])
     P.ident[m, k] = ident
     P.seen[m, k] = 1
     P.missed[m, k] = 0

@@ -41,7 +41,7 @@ close in time, so the poses' normal matrix stays banded and the factorisation in
 Gate, Huber round and tempering are the single-robot smoother's
 (:func:`~fastslam_edu.landmark.smoother.solve_with_gate`): the robot sightings go through the same gate
 (``params.gate_chi2``) and are counted apart (used / gated). Their tempering :math:`\\beta_s` treats each robot
-seen as a landmark of its observer (:func:`~fastslam_edu.landmark.evidence.tempering_exponents_of`). The landmarks'
+seen as a landmark of its observer (:func:`~fastslam_edu.landmark.evidence.tempering_exponents`). The landmarks'
 covariances are the Laplace approximation's, by the Schur complement of the poses (:func:`laplace_landmarks`).
 
 One robot given, this is :func:`~fastslam_edu.landmark.smoother.smooth` (the same factors, in the same order).

@@ -24,7 +24,8 @@ import numpy as np
 from fastslam_edu.core.angles import wrap_angle
 from fastslam_edu.core.motion import MotionNoise, move_segment
 from fastslam_edu.core.resampling import get_resampler
-from fastslam_edu.landmark.fastslam_step import normalise_weights, sample_segment, standard_normals, update_particles
+from fastslam_edu.landmark.fastslam_step import (normalise_weights, propagate_segment_kernel, standard_normals,
+                                                 update_particles)
 from fastslam_edu.landmark.step_records import Particles, Sightings
 
 
@@ -137,8 +138,8 @@ def propagate(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np.random.
 
 def draw_normals(rng: np.random.Generator, m: int, n_steps: int, k: int) -> np.ndarray:
     """The numbers of ``rng.standard_normal((m, n_steps, k))``, stored step by step: (n_steps, k, m), as
-    :func:`fastslam_edu.landmark.fastslam_step.sample_segment` reads them (drawn by the compiled loop when
-    there are many)."""
+    :func:`fastslam_edu.landmark.fastslam_step.propagate_segment_kernel` reads them (drawn by the compiled loop
+    when there are many)."""
     if m * n_steps * k < 4096:
         return np.ascontiguousarray(rng.standard_normal((m, n_steps, k)).transpose(1, 2, 0))
     out = np.empty((n_steps, k, m))
@@ -153,7 +154,7 @@ def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np
     The same random numbers as :func:`propagate`, but instead of every
     particle's path (M, L, 3) it returns what the filter records at each step:
     the weighted-mean pose and the pose of the highest-weight particle
-    (:func:`fastslam_edu.landmark.fastslam_step.sample_segment`).
+    (:func:`fastslam_edu.landmark.fastslam_step.propagate_segment_kernel`).
 
     Parameters
     ----------
@@ -173,8 +174,8 @@ def propagate_segment(particles: ParticleSet, u, dt, noise: MotionNoise, rng: np
     n = len(dt) if n_record is None else n_record
     mean, best = np.empty((n, 3)), np.empty((n, 3))
     particles.poses = np.array(particles.poses, dtype=float)  # a private copy, moved in place
-    sample_segment(particles.poses, u, dt, noise.densities, draw_normals(rng, len(particles), len(dt), noise.n_draws),
-                   w, mean, best)
+    propagate_segment_kernel(particles.poses, u, dt, noise.densities,
+                             draw_normals(rng, len(particles), len(dt), noise.n_draws), w, mean, best)
     return mean, best
 
 
@@ -247,7 +248,7 @@ def update_with_measurements(particles: ParticleSet, z, k, R, *, update_map: boo
     escape : (n,) bool, optional
         Measurements applied without the gate (:class:`Gate`).
     beta : (n,), optional
-        Exponents :math:`\\beta` of their likelihoods (:func:`tempering_exponents_of`; default 1).
+        Exponents :math:`\\beta` of their likelihoods (:func:`tempering_exponents`; default 1).
 
     FastSLAM 2.0 weighs with its own log weights: :func:`make_sightings` (``proposal_loglik``)
     and :func:`update_with_sightings`.

@@ -19,7 +19,7 @@ model *conditioned on the sighting*, linearised around the motion prediction
 with :math:`G = \\partial h/\\partial x` (2×3, :func:`fastslam_edu.core.measurement.jacobian_pose`)
 and :math:`Q = H \\Sigma H^\\top + R` the landmark's innovation covariance of FastSLAM 1.0.
 (The information form of the same Gaussian, :math:`\\Sigma_x = (G^\\top Q^{-1} G + P^{-1})^{-1}`,
-is the paper's; :func:`improved_pose_one` computes it that way.) The importance
+is the paper's; :func:`improved_pose_information_form` computes it that way.) The importance
 weight becomes the likelihood of the sighting with the pose integrated out,
 
 .. math::
@@ -56,8 +56,8 @@ import math
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.angles import wrap_one
-from fastslam_edu.core.ekf import LOG_2PI, ekf_innovation, expected_measurement
+from fastslam_edu.core.angles import wrap_angle_kernel
+from fastslam_edu.core.ekf import LOG_2PI, expected_measurement, innovation_statistics_kernel
 from fastslam_edu.core.measurement import innovation, jacobian_landmark, jacobian_pose, range_bearing
 from fastslam_edu.core.motion import MotionNoise
 from fastslam_edu.landmark.step_records import Sightings
@@ -98,12 +98,12 @@ def segment_motion(u, dt, noise: MotionNoise) -> tuple[np.ndarray, np.ndarray]:
     u = np.ascontiguousarray(np.atleast_2d(np.asarray(u, dtype=float)))
     dt = np.ascontiguousarray(np.atleast_1d(np.asarray(dt, dtype=float)))
     delta, P = np.empty(3), np.empty((3, 3))
-    segment_motion_into(u, dt, noise.densities, noise.mode == "control", delta, P)
+    segment_motion_kernel(u, dt, noise.densities, noise.mode == "control", delta, P)
     return delta, P
 
 
 @njit(cache=True)
-def segment_motion_into(u, dt, noise, control, delta, P):
+def segment_motion_kernel(u, dt, noise, control, delta, P):
     """:func:`segment_motion` into ``delta`` (3,) and ``P`` (3, 3), compiled: ``noise`` = (σ_v, σ_ω, σ_xy, σ_θ)
     (:class:`~fastslam_edu.core.motion.MotionNoise` densities), ``control`` True for noise on the command."""
     n = dt.shape[0]
@@ -141,12 +141,13 @@ def motion_prediction(x0, delta, P_rel) -> tuple[np.ndarray, np.ndarray]:
     """
     x0 = np.ascontiguousarray(np.asarray(x0, dtype=float).reshape(-1, 3))
     x_bar, P = np.empty_like(x0), np.empty((len(x0), 3, 3))
-    predict_into(x0, np.asarray(delta, dtype=float), np.ascontiguousarray(P_rel, dtype=float), x_bar, P)
+    motion_prediction_kernel(x0, np.asarray(delta, dtype=float), np.ascontiguousarray(P_rel, dtype=float),
+                             x_bar, P)
     return x_bar, P
 
 
 @njit(cache=True)
-def predict_into(x0, delta, P_rel, x_bar, P):
+def motion_prediction_kernel(x0, delta, P_rel, x_bar, P):
     """:func:`motion_prediction` into ``x_bar`` (M, 3) and ``P`` (M, 3, 3), compiled."""
     for m in range(x0.shape[0]):
         c, s = math.cos(x0[m, 2]), math.sin(x0[m, 2])
@@ -164,19 +165,19 @@ def predict_into(x0, delta, P_rel, x_bar, P):
 
 
 @njit(cache=True, inline="always")
-def improved_pose_into(x_hat, x_bar, P, mu, sigma, z, R, e):
+def improved_pose_kernel(x_hat, x_bar, P, mu, sigma, z, R, e):
     """The proposal for one particle and one sighting, in place; returns ``(d2, loglik)``.
 
     At the motion prediction :math:`\\bar x` (3,) with covariance :math:`P` (3, 3): :math:`\\bar\\nu = z - \\hat z(\\bar x)`,
-    :math:`H` and :math:`Q = H\\Sigma H^\\top + R` (:func:`fastslam_edu.core.ekf.ekf_innovation` for the landmark
-    ``mu`` (2,), ``sigma`` (2, 2)), :math:`G = \\partial h/\\partial x = (-H \\mid (0, -1)^\\top)`,
+    :math:`H` and :math:`Q = H\\Sigma H^\\top + R` (:func:`fastslam_edu.core.ekf.innovation_statistics_kernel`
+    for the landmark ``mu`` (2,), ``sigma`` (2, 2)), :math:`G = \\partial h/\\partial x = (-H \\mid (0, -1)^\\top)`,
     :math:`S = G P G^\\top + Q`, :math:`K = P G^\\top S^{-1}`. Then, in place: the motion sample ``x_hat`` (3,)
     becomes :math:`\\hat x + K\\,(z + L e - \\hat z(\\hat x))` with :math:`L L^\\top = Q` and ``e`` (2,) standard
     normals (heading wrapped), ``x_bar`` becomes :math:`\\mu_x = \\bar x + K\\bar\\nu`, ``P`` becomes
     :math:`\\Sigma_x = (I - K G) P` (kept symmetric). Returns :math:`d^2 = \\bar\\nu^\\top S^{-1}\\bar\\nu` and
     :math:`\\log\\mathcal N(\\bar\\nu; 0, S)`.
     """
-    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, _, _ = ekf_innovation(x_bar, z, R, mu, sigma)
+    nu0, nu1, h00, h01, h10, h11, q00, q01, q11, _, _ = innovation_statistics_kernel(x_bar, z, R, mu, sigma)
     G = ((-h00, -h01, 0.0), (-h10, -h11, -1.0))
     PG = np.zeros((3, 2))  # P Gᵀ
     for a in range(3):
@@ -199,11 +200,11 @@ def improved_pose_into(x_hat, x_bar, P, mu, sigma, z, R, e):
     l11 = math.sqrt(q11 - l10 * l10)
     r, phi = expected_measurement(x_hat, mu)[:2]
     v0 = z[0] + l00 * e[0] - r
-    v1 = wrap_one(z[1] + l10 * e[0] + l11 * e[1] - phi)
+    v1 = wrap_angle_kernel(z[1] + l10 * e[0] + l11 * e[1] - phi)
     for a in range(3):
         x_hat[a] += K[a, 0] * v0 + K[a, 1] * v1
         x_bar[a] += K[a, 0] * nu0 + K[a, 1] * nu1
-    x_hat[2] = wrap_one(x_hat[2])
+    x_hat[2] = wrap_angle_kernel(x_hat[2])
     for a in range(3):  # Σ_x = P − K G P = P − K (P Gᵀ)ᵀ
         for b in range(3):
             P[a, b] -= K[a, 0] * PG[b, 0] + K[a, 1] * PG[b, 1]
@@ -217,12 +218,12 @@ def improved_pose_into(x_hat, x_bar, P, mu, sigma, z, R, e):
 def _improved_poses(x_hat, x_bar, P, mu, Sigma, z, R, eps):
     d2, loglik = np.empty(x_hat.shape[0]), np.empty(x_hat.shape[0])
     for m in range(x_hat.shape[0]):
-        d2[m], loglik[m] = improved_pose_into(x_hat[m], x_bar[m], P[m], mu[m], Sigma[m], z, R, eps[m])
+        d2[m], loglik[m] = improved_pose_kernel(x_hat[m], x_bar[m], P[m], mu[m], Sigma[m], z, R, eps[m])
     return d2, loglik
 
 
 def improved_pose(x_hat, x_bar, P, mu, Sigma, *, z, R, eps):
-    """The proposal for one sighting, for n particles (:func:`improved_pose_into` for each).
+    """The proposal for one sighting, for n particles (:func:`improved_pose_kernel` for each).
 
     The particles' poses and maps are given by position, the sighting and the draws by name:
     ``improved_pose(x_hat, x_bar, P, mu, Sigma, z=z, R=R, eps=eps)``.
@@ -260,7 +261,7 @@ def improved_pose(x_hat, x_bar, P, mu, Sigma, *, z, R, eps):
     return x, x_bar_new, P_new, loglik, d2
 
 
-def improved_pose_one(x_bar, P, mu, Sigma, z, R):
+def improved_pose_information_form(x_bar, P, mu, Sigma, z, R):
     """The proposal's Gaussian and weight for one particle, in the paper's information form.
 
     :math:`\\Sigma_x = (G^\\top Q^{-1} G + P^{-1})^{-1}`,
@@ -268,7 +269,9 @@ def improved_pose_one(x_bar, P, mu, Sigma, z, R):
     :math:`\\log w = \\log \\mathcal N(z; \\hat z(\\bar x), G P G^\\top + Q)`.
     Shapes (3,), (3, 3), (2,), (2, 2), (2,), (2, 2); returns ``(mu_x, Sigma_x, log_w)``.
     A plain version for teaching and for testing :func:`improved_pose` (a different
-    formula for the same numbers).
+    formula for the same numbers): a job of its own, hence a name of its own, not
+    a twin's suffix (:func:`improved_pose` and its compiled twin :func:`improved_pose_kernel`
+    draw the sample by the Kalman gain).
     """
     x_bar, P, mu, Sigma, z, R = (np.asarray(a, dtype=float) for a in (x_bar, P, mu, Sigma, z, R))
     H, G = jacobian_landmark(x_bar, mu), jacobian_pose(x_bar, mu)
@@ -306,16 +309,16 @@ def sample_improved_poses(particles, sightings, x_bar, P, *, gate_chi2, rng, min
     S = Sightings(np.asarray(z, dtype=float).reshape(-1, 2), np.asarray(k, dtype=np.int64),
                   np.ascontiguousarray(R, dtype=float), np.asarray(escape, dtype=np.bool_), np.ones(len(z)),
                   np.full((len(particles), len(z)), np.nan))
-    sample_improved(particles.arrays(), S, np.array(x_bar, dtype=float), np.array(P, dtype=float),
-                    math.inf if gate_chi2 is None else float(gate_chi2), int(min_count), rng)
+    sample_improved_poses_kernel(particles.arrays(), S, np.array(x_bar, dtype=float), np.array(P, dtype=float),
+                                 math.inf if gate_chi2 is None else float(gate_chi2), int(min_count), rng)
     return S.loglik
 
 
 @njit(cache=True)
-def sample_improved(P, S, x_bar, cov, gate_chi2, min_count, rng):
+def sample_improved_poses_kernel(P, S, x_bar, cov, gate_chi2, min_count, rng):
     """:func:`sample_improved_poses` on the particle arrays ``P`` (:class:`~fastslam_edu.landmark.fastslam_step.Particles`)
     and the sightings ``S`` (:class:`~fastslam_edu.landmark.fastslam_step.Sightings`; the weights go to ``S.loglik``),
-    compiled: particle by particle, the proposal of :func:`improved_pose_into` where the gate lets it."""
+    compiled: particle by particle, the proposal of :func:`improved_pose_kernel` where the gate lets it."""
     x, xb, c, e = np.empty(3), np.empty(3), np.empty((3, 3)), np.empty(2)
     for i in range(S.j.shape[0]):
         j = S.j[i]
@@ -326,7 +329,7 @@ def sample_improved(P, S, x_bar, cov, gate_chi2, min_count, rng):
                 continue
             e[0], e[1] = rng.standard_normal(), rng.standard_normal()
             x[:], xb[:], c[:] = P.poses[m], x_bar[m], cov[m]
-            d2, loglik = improved_pose_into(x, xb, c, P.mu[m, j], P.sigma[m, j], S.z[i], S.R[i], e)
+            d2, loglik = improved_pose_kernel(x, xb, c, P.mu[m, j], P.sigma[m, j], S.z[i], S.R[i], e)
             if S.escape[i] or d2 <= gate_chi2:
                 P.poses[m], x_bar[m], cov[m] = x, xb, c
                 S.loglik[m, i] = loglik

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from fastslam_edu.landmark.particle_set import propagate_segment
-from fastslam_edu.landmark.fastslam_step import motion_prediction_of
+from fastslam_edu.landmark.fastslam_step import motion_prediction_through_segment
 
 
 class MotionProposal:
@@ -34,7 +34,7 @@ class ImprovedProposal(MotionProposal):
     def prediction(self, run, s, e):
         if run.x_start is None:  # the poses were moved by a hook (a kidnap): no motion to condition on
             return None
-        return motion_prediction_of(run.x_start, run.u[s : e + 1], run.dt[s : e + 1], run.settings)
+        return motion_prediction_through_segment(run.x_start, run.u[s : e + 1], run.dt[s : e + 1], run.settings)
 
 
 class KnownPoses(MotionProposal):

@@ -14,7 +14,7 @@ import numpy as np
 
 from fastslam_edu.core.se2 import relative
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.landmark.evidence import tempering_exponents_of
+from fastslam_edu.landmark.evidence import tempering_exponents
 
 
 def compose_jacobian(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -96,7 +96,7 @@ def robot_sighting_table(robot_sightings: dict, streams: dict):
 
 def robot_sighting_weights(observer, seen, t, tau: float | None) -> np.ndarray:
     """Tempering :math:`\\beta_s` of the robot-robot sightings: per observer, each robot seen counts as a landmark
-    (:func:`~fastslam_edu.landmark.evidence.tempering_exponents_of`); ``tau`` None: all 1."""
+    (:func:`~fastslam_edu.landmark.evidence.tempering_exponents`); ``tau`` None: all 1."""
     beta = np.ones(len(t))
     if tau is None:
         return beta
@@ -107,7 +107,7 @@ def robot_sighting_weights(observer, seen, t, tau: float | None) -> np.ndarray:
         ends = np.append(starts[1:], len(rows))
         for ti, s, e in zip(times, starts, ends):
             idx = rows[s:e]
-            beta[idx] = tempering_exponents_of(ti, seen[idx], last_seen, tau)
+            beta[idx] = tempering_exponents(ti, seen[idx], last_seen, tau)
     return beta
 
 

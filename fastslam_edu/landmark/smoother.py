@@ -21,7 +21,7 @@ numbers the keyframes and :math:`j` the landmarks) it minimises
   covariance under the filter's motion noise (:class:`~fastslam_edu.core.motion.MotionNoise`),
   propagated through every odometry step in between (:func:`~.smoother_factors.odometry_factors`);
 * the **sightings**: range–bearing residuals with the filter's :math:`R_i` (range-dependent)
-  and its tempering :math:`\\beta_i` (:func:`fastslam_edu.landmark.evidence.tempering_exponents_of`).
+  and its tempering :math:`\\beta_i` (:func:`fastslam_edu.landmark.evidence.tempering_exponents`).
 
 It is solved by Levenberg–Marquardt on the sparse normal equations
 :math:`(J^\\top J + \\lambda\\,\\mathrm{diag}\\,J^\\top J)\\,\\delta = -J^\\top r`, first with a Huber

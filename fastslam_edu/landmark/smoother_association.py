@@ -38,7 +38,7 @@ with no landmark within :math:`g` starts one at cost :math:`\\lambda` (it fits i
 outlier at cost :math:`g`; the map then keeps a landmark only if its sightings, left out, would cost more than it:
 :math:`\\sum_i \\beta_i (g - d^2_i) > \\lambda`, which needs more than one independent sighting's worth of evidence.
 :math:`\\beta_i = \\min(1, \\Delta t/\\tau)` is the filter's tempering
-(:func:`fastslam_edu.landmark.evidence.tempering_exponents_of`): a landmark seen 3 times a second counts about one
+(:func:`fastslam_edu.landmark.evidence.tempering_exponents`): a landmark seen 3 times a second counts about one
 sighting every :math:`\\tau` seconds, so another robot in view for a moment is not a landmark. Splitting one landmark
 into two pays :math:`\\lambda` and wins when the two fit their sightings better by more; merging two saves it.
 

@@ -25,7 +25,7 @@ from fastslam_edu.core.measurement import innovation, jacobian_landmark, jacobia
 from fastslam_edu.core.motion import MotionNoise, dead_reckon
 from fastslam_edu.core.se2 import relative
 from fastslam_edu.datasets.log import EventStream
-from fastslam_edu.landmark.evidence import tempering_exponents_of
+from fastslam_edu.landmark.evidence import tempering_exponents
 from fastslam_edu.landmark.fastslam import FastSLAMParams, stream_commands
 
 __all__ = ["ODOMETRY_FLOOR_STD", "keyframe_steps", "dead_reckon_stream", "lagged_commands", "OdometryModel",
@@ -227,7 +227,7 @@ def sighting_weights(stream: EventStream, tau: float | None) -> np.ndarray:
     last_seen = np.full(stream.n_landmarks, -np.inf)
     for k in np.flatnonzero(np.diff(stream.offsets)):
         s, e = stream.offsets[k], stream.offsets[k + 1]
-        beta[s:e] = tempering_exponents_of(stream.t[k], stream.landmark[s:e], last_seen, tau)
+        beta[s:e] = tempering_exponents(stream.t[k], stream.landmark[s:e], last_seen, tau)
     return beta
 
 
