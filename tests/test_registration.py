@@ -8,8 +8,8 @@ import pytest
 
 from fastslam_edu.evaluation import association as score
 from fastslam_edu.evaluation.metrics import align_se2
-from fastslam_edu.evaluation.registration import (consensus_motion, count_inliers, motion_of_two, pairs_by_distance,
-                                                  point_grid, register)
+from fastslam_edu.evaluation.registration import (PARTNERS, best_motion, consensus_motion, count_inliers, motion_of_two,
+                                                  nearest_partners, pair_windows, pairs_by_distance, point_grid, register)
 
 
 def turned(points, angle, shift):
@@ -117,5 +117,37 @@ def test_register_without_a_proposal_and_with_bad_input():
 def test_the_consensus_runs_as_plain_python_with_the_same_result():
     truth, estimate, _ = survey_and_map(3)
     compiled = consensus_motion(estimate, truth, 0.5, 1.0)
-    plain = getattr(consensus_motion, "py_func", consensus_motion)(estimate, truth, 0.5, 1.0)
-    assert plain[0] == compiled[0] and np.allclose(plain[1:], compiled[1:], atol=1e-12)
+    partners, pairs = nearest_partners(estimate, 1.0), pairs_by_distance(truth)
+    inputs = (estimate, truth, partners, pairs, pair_windows(estimate, partners, pairs[0], 0.5), point_grid(truth, 0.5),
+              0.5)
+    plain = getattr(best_motion, "py_func", best_motion)(*inputs)
+    assert compiled[0] > 10 and plain[0] == compiled[0] and np.allclose(plain[1:], compiled[1:], atol=1e-12)
+
+
+def test_nearest_partners_are_the_nearest_far_enough_by_every_distance():
+    """Each point's partners are, in order, its nearest other points at least min_baseline away (checked against
+    a loop over every pair); -1 fills the rows with fewer."""
+    rng = np.random.default_rng(6)
+    A = np.vstack([rng.uniform(-3, 3, (12, 2)), [[10.0, 10.0]]])  # one far point: partners too
+    partners = nearest_partners(A, 1.0)
+    assert partners.shape == (13, PARTNERS)
+    for i in range(13):
+        d = [(math.dist(A[i], A[j]), j) for j in range(13) if j != i and math.dist(A[i], A[j]) >= 1.0]
+        expected = [j for _, j in sorted(d)][:PARTNERS]
+        assert partners[i].tolist() == expected + [-1] * (PARTNERS - len(expected))
+    assert nearest_partners(np.array([[0.0, 0.0], [0.5, 0.0]]), 1.0).tolist() == [[-1] * PARTNERS] * 2
+
+
+def test_pair_windows_hold_the_pairs_as_far_apart_and_no_other():
+    """Each window [start, stop) of the sorted pair distances holds exactly the pairs of B whose distance is within
+    2 radius of that of the point and its partner (checked against every pair); a missing partner's is empty."""
+    rng = np.random.default_rng(7)
+    A, B = rng.uniform(-4, 4, (9, 2)), rng.uniform(-4, 4, (8, 2))
+    partners, (dist, _, _) = nearest_partners(A, 1.0), pairs_by_distance(B)
+    partners[0, -1] = -1
+    windows = pair_windows(A, partners, dist, 0.3)
+    for i1 in range(9):
+        for q, i2 in enumerate(partners[i1]):
+            inside = set(range(*windows[i1, q]))
+            expected = set() if i2 < 0 else {p for p in range(len(dist)) if abs(dist[p] - math.dist(A[i1], A[i2])) <= 0.6}
+            assert inside == expected

@@ -43,26 +43,22 @@ def motion_of_two(a1, a2, b1, b2):
     return phi, bx - (c * ax - s * ay), by - (s * ax + c * ay)
 
 
-@njit(cache=True)
 def point_grid(B, cell):
     """The points ``B`` (nb, 2) filed in square cells of side ``cell`` [m] (at least ``cell``; larger if the points
     span more than 1,000 cells): ``(x0, y0, side, nx, ny, start, items)``, the points of cell ``(cx, cy)`` being
     ``items[start[c]:start[c + 1]]`` with ``c = cx * ny + cy``. A point within ``side`` of a position is in the 3×3
-    cells around it, so :func:`count_inliers` looks at a few points, not all of ``B``."""
-    x0, y0 = B[:, 0].min() - cell, B[:, 1].min() - cell
-    side = max(cell, (B[:, 0].max() - x0 + cell) / 1000.0, (B[:, 1].max() - y0 + cell) / 1000.0)
-    nx = int((B[:, 0].max() - x0) / side) + 2
-    ny = int((B[:, 1].max() - y0) / side) + 2
-    key = np.empty(B.shape[0], dtype=np.int64)
-    for j in range(B.shape[0]):
-        key[j] = int((B[j, 0] - x0) / side) * ny + int((B[j, 1] - y0) / side)
-    items = np.argsort(key)
+    cells around it, so :func:`count_inliers` looks at a few points, not all of ``B``. (numpy: it runs once per
+    registration; the order of the points within a cell does not matter, the nearest of them is looked for.)"""
+    B = np.asarray(B, dtype=float)
+    lo, hi = B.min(axis=0), B.max(axis=0)
+    x0, y0 = lo - cell
+    side = float(max(cell, (hi[0] - x0 + cell) / 1000.0, (hi[1] - y0 + cell) / 1000.0))
+    nx, ny = int((hi[0] - x0) / side) + 2, int((hi[1] - y0) / side) + 2
+    key = ((B[:, 0] - x0) / side).astype(np.int64) * ny + ((B[:, 1] - y0) / side).astype(np.int64)
+    items = np.argsort(key, kind="stable")
     start = np.zeros(nx * ny + 1, dtype=np.int64)
-    for j in range(B.shape[0]):
-        start[key[j] + 1] += 1
-    for c in range(nx * ny):
-        start[c + 1] += start[c]
-    return x0, y0, side, nx, ny, start, items
+    np.add.at(start, key + 1, 1)
+    return float(x0), float(y0), side, nx, ny, np.cumsum(start), items
 
 
 @njit(cache=True)
@@ -95,20 +91,13 @@ def count_inliers(A, B, grid, motion, radius, enough=0):
     return count, cost
 
 
-@njit(cache=True)
 def pairs_by_distance(B):
     """Every ordered pair ``(j1, j2)`` of ``B`` (nb, 2), ``j1 != j2``, sorted by their distance: ``(distance (P,),
     j1 (P,), j2 (P,))``, so that the pairs at a given distance are found by bisection."""
-    nb = B.shape[0]
-    n = nb * (nb - 1)
-    dist, first, second = np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
-    k = 0
-    for j1 in range(nb):
-        for j2 in range(nb):
-            if j1 != j2:
-                dist[k], first[k], second[k] = math.hypot(B[j2, 0] - B[j1, 0], B[j2, 1] - B[j1, 1]), j1, j2
-                k += 1
-    order = np.argsort(dist)
+    B = np.asarray(B, dtype=float)
+    first, second = np.nonzero(~np.eye(len(B), dtype=bool))
+    dist = np.hypot(B[second, 0] - B[first, 0], B[second, 1] - B[first, 1])
+    order = np.argsort(dist, kind="stable")
     return dist[order], first[order], second[order]
 
 
@@ -119,40 +108,66 @@ def pairs_by_distance(B):
 PARTNERS = 4
 
 
+def nearest_partners(A, min_baseline):
+    """``(na, PARTNERS)``: for each point of ``A`` (na, 2), its ``PARTNERS`` nearest other points at least
+    ``min_baseline`` [m] away, nearest first (``-1`` where there are fewer)."""
+    A = np.asarray(A, dtype=float)
+    d = np.hypot(A[:, None, 0] - A[None, :, 0], A[:, None, 1] - A[None, :, 1])
+    d[(d < min_baseline) | np.eye(len(A), dtype=bool)] = np.inf
+    order = np.argsort(d, axis=1, kind="stable")[:, :PARTNERS]
+    partners = np.full((len(A), PARTNERS), -1, dtype=np.int64)
+    partners[:, :order.shape[1]] = np.where(np.take_along_axis(d, order, axis=1) < np.inf, order, -1)
+    return partners
+
+
+def pair_windows(A, partners, b_dist, radius):
+    """``(na, PARTNERS, 2)``: for each point ``i1`` of ``A`` and each of its ``partners``, the range ``[start, stop)``
+    of the pairs of ``B`` (their distances ``b_dist`` sorted, :func:`pairs_by_distance`) as far apart as ``i1`` and
+    its partner within ``2 radius`` (empty where the partner is -1): found by bisection."""
+    A = np.asarray(A, dtype=float)
+    other = A[np.maximum(partners, 0)]
+    da = np.hypot(other[..., 0] - A[:, None, 0], other[..., 1] - A[:, None, 1])
+    windows = np.stack([np.searchsorted(b_dist, da - 2.0 * radius), np.searchsorted(b_dist, da + 2.0 * radius,
+                                                                                     side="right")], axis=-1)
+    windows[partners < 0] = 0
+    return windows.astype(np.int64)
+
+
 @njit(cache=True)
-def consensus_motion(A, B, radius, min_baseline):
-    """The motion that lays the most points of ``A`` (na, 2) within ``radius`` of points of ``B`` (nb, 2) (module
-    docstring): ``(count, φ, τx, τy)``; ``count`` 0 when no two points of ``A`` are ``min_baseline`` apart with a
-    pair of ``B`` at the same distance. Each point of ``A`` proposes with its ``PARTNERS`` nearest points at least
-    ``min_baseline`` away, against every ordered pair of ``B`` at the same distance within ``2 radius``
-    (:func:`pairs_by_distance`)."""
+def best_motion(A, B, partners, pairs, windows, grid, radius):
+    """The search of :func:`consensus_motion`: every point ``i1`` of ``A`` with each of its ``partners``, against
+    the ordered pairs of ``B`` (``pairs``, :func:`pairs_by_distance`) in its ``windows`` (:func:`pair_windows`: the
+    pairs as far apart within ``2 radius``); each proposal is scored by :func:`count_inliers` on ``grid``
+    (:func:`point_grid`). ``(count, φ, τx, τy)`` of the best."""
+    _, b_first, b_second = pairs
     best_count, best_cost = 0, math.inf
     best_phi = best_tx = best_ty = 0.0
-    na = A.shape[0]
-    b_dist, b_first, b_second = pairs_by_distance(B)
-    grid = point_grid(B, radius)
-    d = np.empty(na)
-    for i1 in range(na):
-        for i in range(na):
-            d[i] = math.hypot(A[i, 0] - A[i1, 0], A[i, 1] - A[i1, 1])
-        order = np.argsort(d)
-        used = 0
-        for i2 in order:
-            if used == PARTNERS:
-                break
-            da = d[i2]
-            if i2 == i1 or da < min_baseline:
-                continue
-            used += 1
-            start = np.searchsorted(b_dist, da - 2.0 * radius)
-            stop = np.searchsorted(b_dist, da + 2.0 * radius, side="right")
-            for p in range(start, stop):  # the pairs of B the same distance apart, within 2 radius
+    for i1 in range(A.shape[0]):
+        for q in range(partners.shape[1]):
+            i2 = partners[i1, q]
+            for p in range(windows[i1, q, 0], windows[i1, q, 1]):
                 phi, tx, ty = motion_of_two(A[i1], A[i2], B[b_first[p]], B[b_second[p]])
                 count, cost = count_inliers(A, B, grid, (phi, tx, ty), radius, best_count)
                 if count > best_count or (count == best_count and cost < best_cost):
                     best_count, best_cost = count, cost
                     best_phi, best_tx, best_ty = phi, tx, ty
     return best_count, best_phi, best_tx, best_ty
+
+
+def consensus_motion(A, B, radius, min_baseline):
+    """The motion that lays the most points of ``A`` (na, 2) within ``radius`` of points of ``B`` (nb, 2) (module
+    docstring): ``(count, φ, τx, τy)``; ``count`` 0 when no two points of ``A`` are ``min_baseline`` apart with a
+    pair of ``B`` at the same distance. Each point of ``A`` proposes with its ``PARTNERS`` nearest points at least
+    ``min_baseline`` away (:func:`nearest_partners`), against every ordered pair of ``B`` at the same distance within
+    ``2 radius`` (:func:`pairs_by_distance`, :func:`pair_windows`); the search itself is compiled
+    (:func:`best_motion`), the sorting and bisection done here in numpy."""
+    A, B = np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(B, dtype=float)
+    if len(A) < 2 or len(B) < 2:
+        return 0, 0.0, 0.0, 0.0
+    radius = float(radius)
+    partners, pairs = nearest_partners(A, min_baseline), pairs_by_distance(B)
+    windows = pair_windows(A, partners, pairs[0], radius)
+    return best_motion(A, B, partners, pairs, windows, point_grid(B, radius), radius)
 
 
 def register(estimate, truth, radius: float = 0.5, min_baseline: float = 1.0):
@@ -179,4 +194,5 @@ def register(estimate, truth, radius: float = 0.5, min_baseline: float = 1.0):
     return R, t
 
 
-__all__ = ["PARTNERS", "motion_of_two", "point_grid", "count_inliers", "pairs_by_distance", "consensus_motion", "register"]
+__all__ = ["PARTNERS", "motion_of_two", "point_grid", "count_inliers", "pairs_by_distance", "nearest_partners",
+           "pair_windows", "best_motion", "consensus_motion", "register"]
