@@ -35,6 +35,7 @@ landmark        landmark SLAM
                     run over a log, compiled (numba)
     step_records    the named tuples the compiled step takes and writes (particles, sightings, log, settings, record)
     particle_set    the particle set and the four steps on it: propagate, update, resample, combine
+    particle_resampling  step 3 compiled: the particles drawn, the set replaced in place (both runs)
     fastslam        the filter's settings and the run over a log (compiled, or step by step for hooks)
     proposal_strategies  how step 1 moves the particles in the run: the motion model, FastSLAM 2.0, known poses
     hooks           code run alongside the filter: a kidnap, a monitor, the progress bar

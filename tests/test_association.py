@@ -664,7 +664,7 @@ def test_resampling_the_maps_in_place_equals_fancy_indexing():
     ``a[idx]`` on every array of the set (an independent copy), for increasing, repeated and shuffled indices;
     the known-correspondence set's select_in_place likewise."""
     from fastslam_edu.landmark.association import select_maps
-    from fastslam_edu.landmark.fastslam_step import copy_order, is_increasing, select_in_place
+    from fastslam_edu.landmark.particle_resampling import copy_order, is_increasing, select_in_place
     from fastslam_edu.landmark.step_records import Particles
 
     rng = np.random.default_rng(3)

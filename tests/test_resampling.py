@@ -368,3 +368,18 @@ def test_roulette_kernel_counted_equal_the_sorted_positions(seed, m):
     counted = rs.roulette_kernel(w, np.random.default_rng(seed + 10))
     np.testing.assert_array_equal(counted, rs.roulette(w, np.random.default_rng(seed + 10)))
     assert (np.diff(counted) >= 0).all() and (w[counted] > 0).all()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_inverse_cdf_bisection_is_numpys_searchsorted(seed):
+    """The compiled bisection returns what numpy's ``searchsorted(c, u, side="right")`` returns on the normalised
+    cumulative weights (the definition min{i : c_i > u}): weights with zeros and ties, positions at 0, at the
+    interval ends, at 1 and beyond."""
+    rng = np.random.default_rng(seed)
+    w = rng.random(37) * (rng.random(37) > 0.3)
+    w[5] = w[6] = 0.0
+    w = w / w.sum()
+    c = rs.cumulative_weights(w)
+    u = np.concatenate([rng.random(200), c[:-1], [0.0, 1.0, 1.5, -0.2, np.nextafter(1.0, 0.0)]])
+    expected = np.searchsorted(c, np.clip(u, 0.0, np.nextafter(1.0, 0.0)), side="right")
+    np.testing.assert_array_equal(rs.inverse_cdf_kernel(u, w), expected)

@@ -185,11 +185,33 @@ def inverse_cdf(u, w) -> np.ndarray:
 @njit(cache=True)
 def inverse_cdf_kernel(u, w):
     """:func:`inverse_cdf` for weights already validated, compiled: the resamplers here and the
-    filter's compiled run (:func:`fastslam_edu.landmark.fastslam_step.resampling_indices`) share it."""
-    c = np.cumsum(w)
-    c = c / c[-1]  # cumulative_weights
-    u = np.minimum(np.maximum(u, 0.0), _BELOW_ONE)
-    return np.searchsorted(c, u, side="right")
+    filter's compiled run (:func:`fastslam_edu.landmark.particle_resampling.resampling_indices`) share it.
+
+    The cumulative weights :math:`c_i` (normalised to end at 1, :func:`cumulative_weights`), then for each
+    position its :math:`\min\{i : c_i > u\}` by bisection, the loop ``np.searchsorted(c, u, side="right")`` runs
+    (the same comparisons, so the same indices; written out, it compiles without numpy's generic sort
+    machinery)."""
+    m = w.shape[0]
+    c = np.empty(m)
+    total = 0.0
+    for i in range(m):
+        total += w[i]
+        c[i] = total
+    last = c[m - 1]
+    for i in range(m):
+        c[i] /= last
+    out = np.empty(u.shape[0], dtype=np.int64)
+    for j in range(u.shape[0]):
+        uj = min(max(u[j], 0.0), _BELOW_ONE)
+        lo, hi = 0, m  # c[lo - 1] <= uj < c[hi] (c[-1] = -inf, c[m] = +inf): halve [lo, hi) until one index
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if c[mid] <= uj:
+                lo = mid + 1
+            else:
+                hi = mid
+        out[j] = lo
+    return out
 
 
 @njit(cache=True)

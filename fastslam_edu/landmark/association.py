@@ -104,12 +104,12 @@ from fastslam_edu.landmark.association_history import best_history, merge_copies
 from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
 from fastslam_edu.landmark.association_params import (INDEPENDENT, JOINT, AssociationParams, MapParticles,
                                                       initial_particles)
-from fastslam_edu.landmark.fastslam_step import (copy_order, copy_row, is_increasing, motion_prediction_through_segment,
-                                                 move_through_segment, normalise_weights, pose_covariance,
-                                                 resampling_indices, segment_normals, combined_pose_kernel)
+from fastslam_edu.landmark.fastslam_step import (motion_prediction_through_segment, move_through_segment,
+                                                 normalise_weights, pose_covariance, record_poses, segment_normals)
 from fastslam_edu.landmark.joint_compatibility import joint_slots
 from fastslam_edu.landmark.landmark_existence import (add_landmark, existence_log_odds, negative_evidence,
                                                      retire_landmarks)
+from fastslam_edu.landmark.particle_resampling import copy_order, draw_if_degenerate, is_increasing
 from fastslam_edu.landmark.proposal import improved_pose_kernel
 from fastslam_edu.landmark.segments import measurement_segments, stream_commands
 from fastslam_edu.landmark.step_records import RESAMPLER_CODES, Log, Settings
@@ -285,8 +285,8 @@ def splitting_sightings(P, m, instant, slot, rules):
 @njit(cache=True)
 def select_maps(P, idx):
     """Resampling: particles ``idx`` replace the set (maps copied), log weights 0, as
-    :func:`fastslam_edu.landmark.fastslam_step.select_in_place` does for known correspondences: in place in the
-    order of :func:`~fastslam_edu.landmark.fastslam_step.copy_order` when ``idx`` increases, else from a copy."""
+    :func:`fastslam_edu.landmark.particle_resampling.select_in_place` does for known correspondences: in place in the
+    order of :func:`~fastslam_edu.landmark.particle_resampling.copy_order` when ``idx`` increases, else from a copy."""
     if is_increasing(idx):
         for m in copy_order(idx):
             copy_map_particle(P, idx[m], P, m)
@@ -382,19 +382,14 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
             retire_landmarks(P, m, rules, out.renames, out.n_renames, q)
         out.totals[LANDMARKS_CREATED] += out.next_ident[0] - before
         out.instant_of[a:b] = q
-        n_eff = normalise_weights(P.logw, w)
+        idx = draw_if_degenerate(w, normalise_weights(P.logw, w), s, rng)  # step 3, as with barcodes
         for m in range(M):
-            out.parents[q, m] = m
-        if s.resample_threshold >= 1.0 or n_eff < s.resample_threshold * M:
-            idx = resampling_indices(w, rng, s.resampler)
-            select_maps(P, idx)
-            for m in range(M):
-                out.parents[q, m] = idx[m]
-            w[:] = 1.0 / M
+            out.parents[q, m] = idx[m] if idx.shape[0] > 0 else m
+        if idx.shape[0] > 0:
+            select_maps(P, idx)  # the maps of this filter's particles (variable size) copied
             out.totals[MAPS_RESAMPLED] += 1
         out.totals[INSTANTS_DONE] += 1
-        combined_pose_kernel(P.poses, w, out.pose_mean[last])
-        copy_row(P.poses, np.argmax(w), out.pose_best[last])
+        record_poses(P.poses, w, out.pose_mean[last], out.pose_best[last])  # step 4
     return segments.shape[0]
 
 

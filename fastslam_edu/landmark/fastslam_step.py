@@ -31,14 +31,14 @@ the update, the weights, resampling when :math:`N_\\text{eff}` is low, the combi
 so that a run over a log returns to Python once, not once per step.
 
 The particle set is passed as :class:`~fastslam_edu.landmark.step_records.Particles`, a named tuple of arrays
-(:math:`M` particles, :math:`K` landmarks), and changed in place:
+(:math:`M` particles, :math:`N` landmarks), and changed in place:
 
 =========  ==============  ==========================================
 poses      (M, 3)          :math:`x^{[m]} = (x, y, \\theta)` [m, m, rad]
-mu         (M, K, 2)       :math:`\\mu_j^{[m]}` [m]
-sigma      (M, K, 2, 2)    :math:`\\Sigma_j^{[m]}` [m²]
-seen       (M, K) bool     landmark :math:`j` initialised in particle :math:`m`
-count      (M, K) int      sightings of :math:`j` used by particle :math:`m`
+mu         (M, N, 2)       :math:`\\mu_j^{[m]}` [m]
+sigma      (M, N, 2, 2)    :math:`\\Sigma_j^{[m]}` [m²]
+seen       (M, N) bool     landmark :math:`j` initialised in particle :math:`m`
+count      (M, N) int      sightings of :math:`j` used by particle :math:`m`
 logw       (M,)            :math:`\\log w^{[m]}` (unnormalised)
 =========  ==============  ==========================================
 
@@ -50,7 +50,8 @@ from a named tuple (``P.mu``), each view (``P.mu[m, j]``) and each argument of a
 (``update_particle(P, m, s, ...)`` holds ``P``'s six arrays and ``s``'s three) adds one: an atomic
 increment, and a call to decrement it later. Lines 5–18 are a few dozen multiplications per particle,
 so these counts took three quarters of their time (on D1 R2, 145 of 190 ns per particle and sighting).
-:func:`update_particles` and :func:`copy_particle` create no array, they only read and write those
+:func:`update_particles` and
+:func:`~fastslam_edu.landmark.particle_resampling.copy_particle` create no array, they only read and write those
 their caller holds, and are compiled without the counts (``_nrt=False``; an allocation there, such as
 ``np.empty``, would not compile). The numbers are the same to the bit.
 """
@@ -65,13 +66,12 @@ from numba import njit
 
 from fastslam_edu.core.angles import wrap_angle_kernel
 from fastslam_edu.core.ekf import initialise_landmark_kernel, innovation_statistics_kernel, update_landmark_kernel
-from fastslam_edu.core.resampling import inverse_cdf_kernel, roulette_kernel, stratified_positions, systematic_positions
 from fastslam_edu.landmark.evidence import tempering_exponents_kernel
 from fastslam_edu.landmark.gate import gate_escapes, gate_record
+from fastslam_edu.landmark.particle_resampling import draw_if_degenerate, select_in_place
 from fastslam_edu.landmark.proposal import (motion_prediction_kernel, sample_improved_poses_kernel,
                                            segment_motion_kernel)
-from fastslam_edu.landmark.step_records import (RESAMPLES, SIGHTINGS_REJECTED, SIGHTINGS_USED, STEPS_DONE,
-                                                Particles, Sightings)
+from fastslam_edu.landmark.step_records import RESAMPLES, SIGHTINGS_REJECTED, SIGHTINGS_USED, STEPS_DONE, Sightings
 
 
 # ---------------------------------------------------------------- line 4: the motion model
@@ -229,7 +229,7 @@ def sighting_of(S, i):
 
 @njit(cache=True, inline="always")
 def update_particle(P, m, s, gate_chi2, update_map):
-    """Lines 5–18 for particle ``m`` (:class:`Particles`) and one sighting ``s`` (:class:`Sighting`).
+    """Lines 5–18 for particle ``m`` (:class:`~fastslam_edu.landmark.step_records.Particles`) and one sighting ``s`` (:class:`Sighting`).
 
     A first sighting initialises the landmark, weight unchanged. Otherwise the
     particle's log weight grows by :math:`\\beta \\log\\mathcal N(\\nu; 0, Q)` and its
@@ -368,80 +368,6 @@ def pose_covariance(poses, w):
     return cov
 
 
-# ---------------------------------------------------------------- step 3: resampling, compiled
-
-
-@njit(cache=True)
-def resampling_indices(w, rng, code):
-    """The particles drawn by resampler ``code`` (:data:`RESAMPLER_CODES`), with the kernels of
-    :mod:`fastslam_edu.core.resampling`: positions ``u_j`` (systematic ``(j + U) / M``; stratified
-    ``(j + U_j) / M``; roulette ``U_j`` sorted), then the inverse CDF, ``min{i : c_i > u_j}`` (roulette:
-    :func:`fastslam_edu.core.resampling.roulette_kernel`, the same indices without a sort)."""
-    m = w.shape[0]
-    if code == 2:  # the same indices, counted instead of sorted (no sort to compile)
-        return roulette_kernel(w / np.sum(w), rng)
-    u = systematic_positions(m, rng) if code == 0 else stratified_positions(m, rng)
-    return inverse_cdf_kernel(u, w / np.sum(w))
-
-
-@njit(cache=True, _nrt=False)
-def copy_particle(src, i, dst, m):
-    """Particle ``i`` of ``src``: its pose and map written over particle ``m`` of ``dst`` (both :class:`Particles`).
-    Without reference counts (the module docstring): reading ``src.mu`` at every landmark would count one."""
-    for a in range(3):
-        dst.poses[m, a] = src.poses[i, a]
-    for k in range(src.mu.shape[1]):
-        dst.mu[m, k, 0], dst.mu[m, k, 1] = src.mu[i, k, 0], src.mu[i, k, 1]
-        dst.sigma[m, k, 0, 0], dst.sigma[m, k, 0, 1] = src.sigma[i, k, 0, 0], src.sigma[i, k, 0, 1]
-        dst.sigma[m, k, 1, 0], dst.sigma[m, k, 1, 1] = src.sigma[i, k, 1, 0], src.sigma[i, k, 1, 1]
-        dst.seen[m, k], dst.count[m, k] = src.seen[i, k], src.count[i, k]
-
-
-@njit(cache=True)
-def is_increasing(idx):
-    """Whether ``idx`` (M,) never decreases (as the resamplers draw it)."""
-    for m in range(1, idx.shape[0]):
-        if idx[m - 1] > idx[m]:
-            return False
-    return True
-
-
-@njit(cache=True)
-def copy_order(idx):
-    """The particles ``m`` that resampling to ``idx`` (M,) overwrites (``idx[m] != m``), in an order that never
-    reads a particle after overwriting it, for ``idx`` increasing (:func:`is_increasing`): those that move down
-    (``idx[m] > m``) in increasing ``m``, then those that move up (``idx[m] < m``) in decreasing ``m``; a particle
-    ``p`` read by the second pass has ``idx[p] <= p``, so the first did not write it."""
-    order = np.empty(idx.shape[0], dtype=np.int64)
-    n = 0
-    for m in range(idx.shape[0]):
-        if idx[m] > m:
-            order[n] = m
-            n += 1
-    for m in range(idx.shape[0] - 1, -1, -1):
-        if idx[m] < m:
-            order[n] = m
-            n += 1
-    return order[:n]
-
-
-@njit(cache=True)
-def select_in_place(P, idx):
-    """The particles ``idx`` replace the set, their maps copied (no two offspring share memory); log weights 0.
-
-    The resamplers draw ``idx`` in increasing order: then each moved particle is copied once, in the order of
-    :func:`copy_order`, with no temporary set. Other orders: through a copy of the set.
-    """
-    if is_increasing(idx):
-        for m in copy_order(idx):
-            copy_particle(P, idx[m], P, m)
-    else:
-        before = Particles(P.poses.copy(), P.mu.copy(), P.sigma.copy(), P.seen.copy(), P.count.copy(), P.logw)
-        for m in range(idx.shape[0]):
-            copy_particle(before, idx[m], P, m)
-    P.logw[:] = 0.0
-
-
 # ---------------------------------------------------------------- the run over a chunk of the log
 
 
@@ -493,16 +419,24 @@ def weigh_instant(P, L, s, k, rng, out, prediction):
 
 @njit(cache=True)
 def resample_and_combine(P, s, k, rng, out, n_eff):
-    """Steps 3 and 4 at measurement step ``k``: resample in place when :math:`N_\\text{eff}` (``n_eff``, from
-    :func:`weigh_instant`) is below ``s.resample_threshold`` × M (weights then uniform), and record the weighted
-    mean pose and the best particle's."""
-    m = P.poses.shape[0]
-    if s.resample_threshold >= 1.0 or n_eff < s.resample_threshold * m:
-        select_in_place(P, resampling_indices(out.w, rng, s.resampler))
-        out.w[:] = 1.0 / m
+    """Steps 3 and 4 at measurement step ``k``: the particles drawn when the set has degenerated
+    (:func:`draw_if_degenerate`, ``n_eff`` from :func:`weigh_instant`) replace it, maps copied
+    (:func:`select_in_place`); then the combined pose and the best particle's (:func:`record_poses`). The run with
+    unknown correspondences takes the same two steps around its own map copy."""
+    idx = draw_if_degenerate(out.w, n_eff, s, rng)
+    if idx.shape[0] > 0:
+        select_in_place(P, idx)
         out.totals[RESAMPLES] += 1
-    combined_pose_kernel(P.poses, out.w, out.pose_mean[k])
-    copy_row(P.poses, np.argmax(out.w), out.pose_best[k])
+    record_poses(P.poses, out.w, out.pose_mean[k], out.pose_best[k])
+
+
+@njit(cache=True)
+def record_poses(poses, w, mean, best):
+    """Step 4: the combined pose, the weighted mean of ``poses`` (M, 3) with weights ``w`` (M,)
+    (:func:`combined_pose_kernel`), into ``mean`` (3,), and the pose of the particle of the highest weight into
+    ``best`` (3,)."""
+    combined_pose_kernel(poses, w, mean)
+    copy_row(poses, np.argmax(w), best)
 
 
 @njit(cache=True)

@@ -39,7 +39,7 @@ class Sightings(NamedTuple):
     loglik: np.ndarray
 
 
-#: The resamplers the compiled run has (:func:`fastslam_edu.landmark.fastslam_step.resampling_indices`), by name.
+#: The resamplers the compiled run has (:func:`fastslam_edu.landmark.particle_resampling.resampling_indices`), by name.
 RESAMPLER_CODES = {"systematic": 0, "stratified": 1, "roulette": 2, "multinomial": 2}
 
 
