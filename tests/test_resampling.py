@@ -383,3 +383,11 @@ def test_inverse_cdf_bisection_is_numpys_searchsorted(seed):
     u = np.concatenate([rng.random(200), c[:-1], [0.0, 1.0, 1.5, -0.2, np.nextafter(1.0, 0.0)]])
     expected = np.searchsorted(c, np.clip(u, 0.0, np.nextafter(1.0, 0.0)), side="right")
     np.testing.assert_array_equal(rs.inverse_cdf_kernel(u, w), expected)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_in_increasing_order_is_a_sort_of_the_draws(seed):
+    """The counting sort returns numpy's np.sort of the indices (the same multiset, increasing)."""
+    idx = np.random.default_rng(seed).integers(0, 20, 20)
+    np.testing.assert_array_equal(rs.in_increasing_order(idx), np.sort(idx))
+    np.testing.assert_array_equal(rs.in_increasing_order(np.sort(idx)), np.sort(idx))

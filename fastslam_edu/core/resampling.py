@@ -188,7 +188,7 @@ def inverse_cdf_kernel(u, w):
     filter's compiled run (:func:`fastslam_edu.landmark.particle_resampling.resampling_indices`) share it.
 
     The cumulative weights :math:`c_i` (normalised to end at 1, :func:`cumulative_weights`), then for each
-    position its :math:`\min\{i : c_i > u\}` by bisection, the loop ``np.searchsorted(c, u, side="right")`` runs
+    position its :math:`\\min\\{i : c_i > u\\}` by bisection, the loop ``np.searchsorted(c, u, side="right")`` runs
     (the same comparisons, so the same indices; written out, it compiles without numpy's generic sort
     machinery)."""
     m = w.shape[0]
@@ -221,26 +221,33 @@ def roulette_positions(n, rng):
 
 
 @njit(cache=True)
+def in_increasing_order(idx):
+    """The particles drawn, ``idx`` (M,) with values in ``0 … M-1``, in increasing order: each particle's
+    offspring counted, then written out in particle order (:math:`O(M)`, a counting sort). A resampled set is a
+    multiset: the order of its members changes nothing but where each is stored."""
+    m = idx.shape[0]
+    offspring = np.zeros(m, dtype=np.int64)
+    for i in idx:
+        offspring[i] += 1
+    out = np.empty(m, dtype=np.int64)
+    j = 0
+    for i in range(m):
+        for _ in range(offspring[i]):
+            out[j] = i
+            j += 1
+    return out
+
+
+@njit(cache=True)
 def roulette_kernel(w, rng):
     """:func:`roulette` with ``n = M`` for validated weights ``w`` (M,), compiled, without a sort.
 
     The inverse CDF :math:`i(u) = \\min\\{i : c_i > u\\}` never decreases as :math:`u` grows, so the
-    indices of the *unsorted* positions, put in increasing order, are those of the sorted positions:
-    each particle's offspring are counted, then written out in particle order (:math:`O(M)`, the same
-    numbers as ``inverse_cdf_kernel(roulette_positions(M, rng), w)``; numba compiles a loop in a
-    fraction of the time it takes for ``np.sort``).
+    indices of the *unsorted* positions, put in increasing order (:func:`in_increasing_order`), are those of the
+    sorted positions: the same numbers as ``inverse_cdf_kernel(roulette_positions(M, rng), w)`` (numba compiles a
+    loop in a fraction of the time it takes for ``np.sort``).
     """
-    m = w.shape[0]
-    drawn = inverse_cdf_kernel(rng.random(m), w)
-    offspring = np.zeros(m, dtype=np.int64)
-    for i in drawn:
-        offspring[i] += 1
-    j = 0
-    for i in range(m):
-        for _ in range(offspring[i]):
-            drawn[j] = i
-            j += 1
-    return drawn
+    return in_increasing_order(inverse_cdf_kernel(rng.random(w.shape[0]), w))
 
 
 @njit(cache=True)

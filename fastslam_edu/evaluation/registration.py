@@ -32,7 +32,7 @@ from fastslam_edu.core.checks import finite_array
 from fastslam_edu.core.se2 import align_se2
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def motion_of_two(a1, a2, b1, b2):
     """The rigid motion :math:`(\\varphi, \\tau_x, \\tau_y)` [rad, m, m] that turns :math:`a_2 - a_1` onto the
     direction of :math:`b_2 - b_1` and moves the midpoint of :math:`a_1, a_2` onto that of :math:`b_1, b_2`."""
@@ -61,7 +61,7 @@ def point_grid(B, cell):
     return float(x0), float(y0), side, nx, ny, np.cumsum(start), items
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def count_inliers(A, B, grid, motion, radius, enough=0):
     """``(count, cost)``: how many points of ``A`` (na, 2), moved by ``motion`` :math:`= (\\varphi, \\tau_x, \\tau_y)`,
     lie within ``radius`` of some point of ``B`` (nb, 2) (filed in ``grid``, :func:`point_grid` with a side of at
@@ -133,7 +133,7 @@ def pair_windows(A, partners, b_dist, radius):
     return windows.astype(np.int64)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def best_motion(A, B, partners, pairs, windows, grid, radius):
     """The search of :func:`consensus_motion`: every point ``i1`` of ``A`` with each of its ``partners``, against
     the ordered pairs of ``B`` (``pairs``, :func:`pairs_by_distance`) in its ``windows`` (:func:`pair_windows`: the

@@ -98,6 +98,7 @@ import numpy as np
 from numba import njit
 
 from fastslam_edu.core.ekf import initialise_landmark_kernel, innovation_statistics_kernel, update_landmark_kernel
+from fastslam_edu.core.resampling import in_increasing_order
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association_history import best_history, merge_copies
@@ -151,9 +152,9 @@ def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
         return slot, chosen
     if rules.association == INDEPENDENT:
         for i in range(n):
-            if K > 0 and ll[i].max() > -math.inf:
-                slot[i] = np.argmax(ll[i])
-                chosen[i] = ll[i, slot[i]]
+            for k in range(K):  # the first most likely landmark (np.argmax's), if any is a candidate
+                if ll[i, k] > chosen[i]:
+                    slot[i], chosen[i] = k, ll[i, k]
         return slot, chosen
     for _ in range(min(n, K)):
         best, bi, bk = -math.inf, -1, -1
@@ -245,7 +246,7 @@ def apply_associations(P, m, instant, chosen, rules, next_ident, out):
     negative_evidence(P, m, taken, rules)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def measure_landmark(P, m, k, z, R, rules, fresh):
     """Landmark ``k`` of particle ``m`` measured by sighting ``z`` (2,): its EKF update (lines 12–17 of table 13.1),
     or, under deferred commitment, its re-initialisation from ``z`` alone (lines 7–9): when ``z`` is its first
@@ -285,21 +286,16 @@ def splitting_sightings(P, m, instant, slot, rules):
 @njit(cache=True)
 def select_maps(P, idx):
     """Resampling: particles ``idx`` replace the set (maps copied), log weights 0, as
-    :func:`fastslam_edu.landmark.particle_resampling.select_in_place` does for known correspondences: in place in the
-    order of :func:`~fastslam_edu.landmark.particle_resampling.copy_order` when ``idx`` increases, else from a copy."""
-    if is_increasing(idx):
-        for m in copy_order(idx):
-            copy_map_particle(P, idx[m], P, m)
-    else:
-        before = MapParticles(P.poses.copy(), P.mu.copy(), P.sigma.copy(), P.n.copy(), P.ident.copy(), P.seen.copy(),
-                              P.missed.copy(), P.evidence.copy(), P.log_odds.copy(), P.last_t.copy(),
-                              P.first_t.copy(), P.committed.copy(), P.logw)
-        for m in range(idx.shape[0]):
-            copy_map_particle(before, idx[m], P, m)
+    :func:`fastslam_edu.landmark.particle_resampling.select_in_place` does for known correspondences: in place, in
+    the order of :func:`~fastslam_edu.landmark.particle_resampling.copy_order`, the indices in increasing order."""
+    if not is_increasing(idx):
+        idx = in_increasing_order(idx)
+    for m in copy_order(idx):
+        copy_map_particle(P, idx[m], P, m)
     P.logw[:] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def copy_map_particle(src, i, dst, m):
     """Particle ``i`` of ``src``: its pose and its map (every slot, held or not) written over particle ``m`` of
     ``dst`` (both :class:`~fastslam_edu.landmark.association_params.MapParticles`), number by number."""

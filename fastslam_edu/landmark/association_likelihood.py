@@ -15,14 +15,14 @@ from fastslam_edu.core.ekf import LOG_2PI, expected_measurement, innovation_stat
 # ---------------------------------------------------------------- one particle, one sighting
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def new_landmark_loglik(R, d0_sq):
     """:math:`\\log p_0`: a fresh landmark's Gaussian (:math:`Q = 2R`) at squared Mahalanobis distance ``d0_sq``."""
     det_2r = 4.0 * (R[0, 0] * R[1, 1] - 0.25 * (R[0, 1] + R[1, 0]) ** 2)
     return -0.5 * d0_sq - LOG_2PI - 0.5 * math.log(det_2r)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def pose_jacobian(pose, mx, my):
     """:math:`H_x = \\partial h/\\partial x` (2, 3) of the range and bearing of a landmark at ``(mx, my)``, as
     ``(j0, j1, j2, k0, k1, k2)``: the range row, then the bearing row. A landmark moving by :math:`\\delta` and the
@@ -33,7 +33,7 @@ def pose_jacobian(pose, mx, my):
     return -h00, -h01, 0.0, -h10, -h11, -1.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def pose_term(pose, mx, my, cloud):
     """:math:`H_x P H_x^\\top` (``a, b, d``: entries 00, 01, 11) for a landmark at ``(mx, my)``: the pose
     covariance ``cloud`` (3, 3) of the particle set carried into measurement space."""
@@ -68,7 +68,7 @@ def drift_covariance(cloud, unseen_s, rules):
     return P
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def innovation_with_pose(pose, z, R, mu, sigma, P, rules):
     """The innovation of one sighting and landmark with the pose covariance ``P`` (3, 3) added:
     ``(nu0, nu1, q00, q01, q11)``, :math:`\\nu` and :math:`Q + H_x P H_x^\\top` (its range variance scaled by

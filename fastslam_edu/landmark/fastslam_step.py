@@ -135,7 +135,7 @@ def sample_pose(x, y, c, s, ds, dtheta, kick_x, kick_y):
     return x + ds * c + kick_x, y + ds * s + kick_y, c_new, s_new
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def exact_large_turns(theta, dtheta, c, s):
     """``c, s = cos θ, sin θ`` for the particles that just turned by more than :data:`SMALL_TURN` (long steps)."""
     for m in range(theta.shape[0]):
@@ -143,7 +143,7 @@ def exact_large_turns(theta, dtheta, c, s):
             c[m], s[m] = math.cos(theta[m]), math.sin(theta[m])
 
 
-@njit(cache=True, fastmath={"reassoc"})
+@njit(cache=True, fastmath={"reassoc"}, _nrt=False)
 def weighted_mean_xy_heading(x, y, c, s, w, out):
     """:math:`\\bar x = \\sum_m w^{[m]} x^{[m]}` into ``out`` (3,), θ the circular mean from the headings ``c, s``.
 
@@ -259,7 +259,7 @@ def update_particle(P, m, s, gate_chi2, update_map):
         P.count[m, j] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def initialise_particle_landmark(P, m, s):
     """Lines 7–9: landmark ``s.j`` of particle ``m`` from the inverse model
     (:func:`fastslam_edu.core.ekf.initialise_landmark_kernel`), seen once. (Not inlined: it runs once per landmark
@@ -320,9 +320,11 @@ def normalise_weights(logw, w):
     All log weights :math:`-\\infty` (every particle ruled out): uniform weights,
     as :func:`fastslam_edu.core.weights.weights_from_log` does; NaN or :math:`+\\infty`: ValueError.
     """
-    top = np.max(logw)
-    if math.isnan(top) or top == math.inf:
-        raise ValueError("log weights contain NaN or +inf: a likelihood was not computed right")
+    top = -math.inf
+    for m in range(logw.shape[0]):  # (a loop: numba's np.max compiles a generic reduction)
+        if math.isnan(logw[m]) or logw[m] == math.inf:
+            raise ValueError("log weights contain NaN or +inf: a likelihood was not computed right")
+        top = max(top, logw[m])
     if top == -math.inf:
         w[:] = 1.0 / w.shape[0]
         return float(w.shape[0])

@@ -152,7 +152,7 @@ def best_joint_hypothesis(info, ll, p0, Pc, slot):
             return
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def joint_loglik(total, n_assigned, Pc):
     """:math:`\\log\\mathcal N(\\nu; 0, S)` of ``n_assigned`` stacked sightings, :math:`S = D + H_x P_c H_x^\\top`
     (:math:`D` block-diagonal), from the sums over the sightings of :func:`pair_information`'s rows, ``total``

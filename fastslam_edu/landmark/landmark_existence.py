@@ -13,7 +13,7 @@ from numba import njit
 from fastslam_edu.core.ekf import expected_measurement, initialise_landmark_kernel
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def add_landmark(P, m, z, R, ident, t):
     """A new landmark in particle ``m`` from sighting ``z`` (lines 7–9 of table 13.1); its slot, or -1 if full."""
     k = P.n[m]
@@ -31,7 +31,7 @@ def add_landmark(P, m, z, R, ident, t):
     return k
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def remove_landmark(P, m, k):
     """Remove landmark ``k`` of particle ``m``: the last landmark takes its slot."""
     last = P.n[m] - 1
@@ -52,14 +52,14 @@ def remove_landmark(P, m, k):
     P.n[m] = last
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def in_view(pose, mu, rules):
     """Whether a landmark at ``mu`` is inside the camera's field of view and range from ``pose``."""
     r, phi, _, _, _, _ = expected_measurement(pose, mu)
     return rules.min_range <= r <= rules.max_range and abs(phi) <= rules.fov
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def existence_log_odds(log_odds, seen, rules):
     """The existence log odds of a landmark after one instant in view: seen (``True``) or missed.
 
@@ -73,7 +73,7 @@ def existence_log_odds(log_odds, seen, rules):
     return log_odds + rules.log_odds_missed
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def negative_evidence(P, m, taken, rules):
     """Count a miss for every landmark of particle ``m`` in view but not taken at this instant; remove the
     provisional ones whose existence log odds (:func:`existence_log_odds`) fall below zero: more likely clutter than
@@ -90,7 +90,7 @@ def negative_evidence(P, m, taken, rules):
         k += 1
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def heir_of(P, m, a, rules):
     """The landmark of particle ``m`` that continues the identity of landmark ``a``: the nearest one made after
     ``a``, within ``rules.inherit_radius`` metres; -1 if there is none."""
@@ -109,7 +109,7 @@ def heir_of(P, m, a, rules):
 RENAME_INSTANT, RENAME_PARTICLE, RENAME_HEIR, RENAME_TAKEN = 0, 1, 2, 3
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def retire_landmarks(P, m, rules, renames, n_renames, q):
     """Remove the confirmed landmarks of particle ``m`` whose existence log odds fell below zero; each passes
     its identity to its heir (:func:`heir_of`), if it has one.

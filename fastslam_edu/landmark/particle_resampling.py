@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.resampling import inverse_cdf_kernel, roulette_kernel, stratified_positions, systematic_positions
-from fastslam_edu.landmark.step_records import Particles
+from fastslam_edu.core.resampling import (in_increasing_order, inverse_cdf_kernel, roulette_kernel, stratified_positions,
+                                         systematic_positions)
 
 
 @njit(cache=True)
@@ -47,7 +47,7 @@ def copy_particle(src, i, dst, m):
         dst.seen[m, k], dst.count[m, k] = src.seen[i, k], src.count[i, k]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def is_increasing(idx):
     """Whether ``idx`` (M,) never decreases (as the resamplers draw it)."""
     for m in range(1, idx.shape[0]):
@@ -77,18 +77,17 @@ def copy_order(idx):
 
 @njit(cache=True)
 def select_in_place(P, idx):
-    """The particles ``idx`` replace the set, their maps copied (no two offspring share memory); log weights 0.
+    """The particles ``idx`` (M,) replace the set ``P``, their maps copied (no two offspring share memory); log
+    weights 0.
 
-    The resamplers draw ``idx`` in increasing order: then each moved particle is copied once, in the order of
-    :func:`copy_order`, with no temporary set. Other orders: through a copy of the set.
+    The resamplers draw ``idx`` in increasing order: each particle that changes is then copied once, in the order
+    of :func:`copy_order`, with no second copy of the set. Indices in another order are first put in increasing
+    order (:func:`fastslam_edu.core.resampling.in_increasing_order`: the same particles drawn).
     """
-    if is_increasing(idx):
-        for m in copy_order(idx):
-            copy_particle(P, idx[m], P, m)
-    else:
-        before = Particles(P.poses.copy(), P.mu.copy(), P.sigma.copy(), P.seen.copy(), P.count.copy(), P.logw)
-        for m in range(idx.shape[0]):
-            copy_particle(before, idx[m], P, m)
+    if not is_increasing(idx):
+        idx = in_increasing_order(idx)
+    for m in copy_order(idx):
+        copy_particle(P, idx[m], P, m)
     P.logw[:] = 0.0
 
 
