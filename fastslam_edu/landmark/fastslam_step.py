@@ -50,10 +50,11 @@ from a named tuple (``P.mu``), each view (``P.mu[m, j]``) and each argument of a
 (``update_particle(P, m, s, ...)`` holds ``P``'s six arrays and ``s``'s three) adds one: an atomic
 increment, and a call to decrement it later. Lines 5–18 are a few dozen multiplications per particle,
 so these counts took three quarters of their time (on D1 R2, 145 of 190 ns per particle and sighting).
-:func:`update_particles` and
-:func:`~fastslam_edu.landmark.particle_resampling.copy_particle` create no array, they only read and write those
-their caller holds, and are compiled without the counts (``_nrt=False``; an allocation there, such as
-``np.empty``, would not compile). The numbers are the same to the bit.
+Every kernel of the package that creates no array (:func:`update_particles`,
+:func:`~fastslam_edu.landmark.particle_resampling.copy_particle`, the landmark bookkeeping of the run without
+barcodes, ...) only reads and writes the arrays its caller holds, and is compiled without the counts
+(``_nrt=False``; an allocation there, such as ``np.empty``, would not compile): faster to run, and to compile.
+The numbers are the same to the bit.
 """
 
 from __future__ import annotations
