@@ -9,8 +9,7 @@
   and has a teaching form of its stem; no compiled function has the name of a teaching function; a compiled
   function whose docstring opens with ``:func:`stem``` (the teaching function it is the twin of) is ``stem_kernel``.
 * The landmark count is :math:`N` and :math:`K` only ever the Kalman gain (``book/notation.md``): no docstring or
-  comment of the package gives a shape that starts with ``K`` — ``(K,)``, ``(K, 2)``, ``(K, 2, 2)`` — except in
-  ``KNOWN_K_SHAPES``, modules being edited by others in issue 30.
+  comment of the package gives a shape with a ``K`` axis — ``(K,)``, ``(K, 2)``, ``(M, K, 2)``, ``(n, K)``.
 """
 
 from __future__ import annotations
@@ -33,11 +32,9 @@ KNOWN_DUPLICATES: set[str] = {
     "propagate",  # core.motion's is the deterministic g(x, u); landmark/particle_set.py's samples step 1 (its owner)
 }
 
-#: Modules whose docstrings still give landmark shapes with K (being edited by others in issue 30).
-KNOWN_K_SHAPES: set[str] = set()
-
-#: A shape whose first axis is K: ``(K,)``, ``(K, 2)``, ``(K,2,2)`` ...
-K_SHAPE = re.compile(r"\(K,\s*(?:\d+\s*(?:,\s*\d+\s*)*)?\)")
+#: A shape with a K axis: ``(K,)``, ``(K, 2)``, ``(K,2,2)``, ``(M, K, 2)``, ``(n, K)`` ... (a tuple: with a comma; ``(K)``
+#: alone names the gain)
+K_SHAPE = re.compile(r"\((?:\s*\w+\s*,)*\s*K\s*(?:,\s*\w*\s*)*\)")
 
 
 def modules() -> dict[str, str]:
@@ -108,8 +105,8 @@ def prose(source: str) -> list[tuple[int, str]]:
 
 
 def k_shapes(source: str) -> list[tuple[int, str]]:
-    """``(line, match)`` of every K-first shape in the docstrings and comments of ``source``."""
-    return [(line, m.group()) for line, text in prose(source) for m in K_SHAPE.finditer(text)]
+    """``(line, match)`` of every shape with a K axis in the docstrings and comments of ``source``."""
+    return [(line, m.group()) for line, text in prose(source) for m in K_SHAPE.finditer(text) if "," in m.group()]
 
 
 # ---------------------------------------------------------------- the checks read what they should
@@ -153,6 +150,7 @@ def test_k_shapes_in_docstrings_and_comments_only():
     )
     assert k_shapes(source) == [(1, "(K, 2)"), (1, "(K,)"), (4, "(K, 2)"), (2, "(K,2,2)")]
     assert k_shapes('"""landmarks (N, 2), gain K = Σ Hᵀ Q⁻¹ (2, 2)"""\n') == []
+    assert k_shapes('"""mu (M, K, 2), ll (n, K), cov (M, N, 2, 2), gain (K)"""\n') == [(1, "(M, K, 2)"), (1, "(n, K)")]
 
 
 # ---------------------------------------------------------------- the package
@@ -178,14 +176,9 @@ def test_every_known_duplicate_is_still_one(name):
 
 
 def test_no_landmark_shape_with_k():
-    found = {path: k_shapes(source) for path, source in modules().items() if path not in KNOWN_K_SHAPES}
+    found = {path: k_shapes(source) for path, source in modules().items()}
     found = {path: hits for path, hits in found.items() if hits}
     assert not found, f"the landmark count is N, K the Kalman gain (book/notation.md): {found}"
-
-
-@pytest.mark.parametrize("path", sorted(KNOWN_K_SHAPES))
-def test_every_known_k_shape_is_still_there(path):
-    assert k_shapes(modules()[path]), f"{path} has no (K, ...) shape now: drop it from KNOWN_K_SHAPES"
 
 
 # ---------------------------------------------------------------- one three-way choice, one name

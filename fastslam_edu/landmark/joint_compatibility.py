@@ -31,7 +31,7 @@ N_PAIR_SLOTS = 14
 def joint_slots(P, m, pose, cloud, instant, rules, ll, slot):
     """The jointly most likely association of one instant's sightings (joint compatibility, Neira and Tardós
     2001), written into ``slot`` (n,); False (``slot`` untouched) if there are more than ``JOINT_MAX_HYPOTHESES``
-    hypotheses. ``instant = (z (n, 2), R (n, 2, 2), t)``; ``ll`` (n, K) from :func:`choose_landmarks`.
+    hypotheses. ``instant = (z (n, 2), R (n, 2, 2), t)``; ``ll`` (n, N) from :func:`choose_landmarks`.
 
     Sighting :math:`i`'s candidates are the landmarks with ``ll[i, k] > -inf``, and a new landmark
     (:math:`p_0`). The sightings of one instant share the particle's pose error: the part of the drift that

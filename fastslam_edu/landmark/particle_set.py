@@ -2,13 +2,13 @@
 Robotics*): propagate (step 1), update (step 2, in the compiled kernels of :mod:`fastslam_edu.landmark.fastslam_step`),
 resample (step 3) and combine (step 4).
 
-State of the filter (:class:`ParticleSet`), for :math:`M` particles and :math:`K` landmarks:
+State of the filter (:class:`ParticleSet`), for :math:`M` particles and :math:`N` landmarks:
 
 =========  ==============  ==========================================
 poses      (M, 3)          :math:`x^{[m]} = (x, y, \\theta)` [m, m, rad]
-mu         (M, K, 2)       :math:`\\mu_k^{[m]}` [m]
-sigma      (M, K, 2, 2)    :math:`\\Sigma_k^{[m]}` [m²]
-seen       (M, K) bool     landmark k initialised in particle m
+mu         (M, N, 2)       :math:`\\mu_n^{[m]}` [m]
+sigma      (M, N, 2, 2)    :math:`\\Sigma_n^{[m]}` [m²]
+seen       (M, N) bool     landmark n initialised in particle m
 logw       (M,)            :math:`\\log w^{[m]}` (unnormalised)
 =========  ==============  ==========================================
 
@@ -38,7 +38,7 @@ class ParticleSet:
     sigma: np.ndarray
     seen: np.ndarray
     logw: np.ndarray
-    count: np.ndarray | None = None  # (M, K) sightings used per landmark (default: 1 where seen)
+    count: np.ndarray | None = None  # (M, N) sightings used per landmark (default: 1 where seen)
 
     def __post_init__(self):
         if self.count is None:
@@ -50,12 +50,12 @@ class ParticleSet:
         x0 = np.asarray(x0, dtype=float)
         if x0.shape != (3,) or not np.all(np.isfinite(x0)):
             raise ValueError(f"initial pose must be 3 finite numbers (x, y, theta), got {x0!r}")
-        M, K = int(n_particles), int(n_landmarks)
+        M, N = int(n_particles), int(n_landmarks)
         return cls(
             poses=np.tile(x0, (M, 1)),
-            mu=np.zeros((M, K, 2)),
-            sigma=np.tile(np.eye(2), (M, K, 1, 1)),
-            seen=np.zeros((M, K), dtype=bool),
+            mu=np.zeros((M, N, 2)),
+            sigma=np.tile(np.eye(2), (M, N, 1, 1)),
+            seen=np.zeros((M, N), dtype=bool),
             logw=np.zeros(M),
         )
 
@@ -325,7 +325,7 @@ def combined_map(particles: ParticleSet):
 
     Returns ``mu (N, 2)``, ``sigma (N, 2, 2)``, ``observed (N,)``; NaN for unseen landmarks.
     """
-    w = particles.weights[:, None] * particles.seen  # (M, K)
+    w = particles.weights[:, None] * particles.seen  # (M, N)
     tot = w.sum(axis=0)
     observed = tot > 0
     wn = np.divide(w, tot, out=np.zeros_like(w), where=observed)
