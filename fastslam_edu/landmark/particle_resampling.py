@@ -17,16 +17,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.resampling import (in_increasing_order, inverse_cdf_kernel, roulette_kernel, stratified_positions,
-                                         systematic_positions)
+from fastslam_edu.core.resampling import (in_increasing_order, inverse_cdf_kernel, roulette_kernel,
+                                         stratified_positions, systematic_positions)
 
 
 @njit(cache=True)
 def resampling_indices(w, rng, code):
-    """The particles drawn by resampler ``code`` (:data:`~fastslam_edu.landmark.step_records.RESAMPLER_CODES`), with the kernels of
-    :mod:`fastslam_edu.core.resampling`: positions ``u_j`` (systematic ``(j + U) / M``; stratified
-    ``(j + U_j) / M``; roulette ``U_j`` sorted), then the inverse CDF, ``min{i : c_i > u_j}`` (roulette:
-    :func:`fastslam_edu.core.resampling.roulette_kernel`, the same indices without a sort)."""
+    """The particles drawn by resampler ``code`` (:data:`~fastslam_edu.landmark.step_records.RESAMPLER_CODES`),
+    with the kernels of :mod:`fastslam_edu.core.resampling`: positions ``u_j`` (systematic ``(j + U) / M``;
+    stratified ``(j + U_j) / M``; roulette ``U_j`` sorted), then the inverse CDF, ``min{i : c_i > u_j}``
+    (roulette: :func:`fastslam_edu.core.resampling.roulette_kernel`, the same indices without a sort)."""
     m = w.shape[0]
     if code == 2:  # the same indices, counted instead of sorted (no sort to compile)
         return roulette_kernel(w / np.sum(w), rng)
@@ -36,8 +36,9 @@ def resampling_indices(w, rng, code):
 
 @njit(cache=True, _nrt=False)
 def copy_particle(src, i, dst, m):
-    """Particle ``i`` of ``src``: its pose and map written over particle ``m`` of ``dst`` (both :class:`~fastslam_edu.landmark.step_records.Particles`).
-    Without reference counts (:mod:`fastslam_edu.landmark.fastslam_step`'s docstring): reading ``src.mu`` at every landmark would count one."""
+    """Particle ``i`` of ``src``: its pose and map written over particle ``m`` of ``dst`` (both
+    :class:`~fastslam_edu.landmark.step_records.Particles`). Without reference counts
+    (:mod:`fastslam_edu.landmark.fastslam_step`'s docstring): reading ``src.mu`` at every landmark would count one."""
     for a in range(3):
         dst.poses[m, a] = src.poses[i, a]
     for k in range(src.mu.shape[1]):
