@@ -136,9 +136,55 @@ def test_several_filter_runs_compete_by_cost(sim):
     other = run_unknown(stream, SIM_PARAMS, 1)
     alone = [sa.smooth_association(stream, run) for run in (filt, other)]
     both = sa.smooth_association(stream, [filt, other])
-    assert both.costs == alone[0].costs + alone[1].costs
+    # the incremental start reads no run: once, last
+    assert both.costs == alone[0].costs[:-1] + alone[1].costs[:-1] + alone[0].costs[-1:]
     assert both.cost == min(a.cost for a in alone)
     assert np.array_equal(both.history, min(alone, key=lambda a: a.cost).history)
     short = dataclasses.replace(other, t=other.t[:-1])
     with pytest.raises(ValueError, match="the filter ran"):
         sa.smooth_association(stream, [filt, short])
+
+
+def test_predict_pose_jacobian_is_the_numerical_one():
+    from fastslam_edu.core.se2 import compose
+    x, u, P = np.array([1.0, -2.0, 0.7]), np.array([0.8, 0.3, -0.2]), np.diag([0.01, 0.02, 0.03])
+    moved, P2 = sa.predict_pose(x, P, u, np.zeros((3, 3)))
+    F = np.empty((3, 3))
+    for i in range(3):  # central differences of x ⊕ u
+        e = np.zeros(3)
+        e[i] = 1e-6
+        F[:, i] = (sa.predict_pose(x + e, P, u, 0 * P)[0] - sa.predict_pose(x - e, P, u, 0 * P)[0]) / 2e-6
+    assert np.allclose(moved, compose(x, u)) and np.allclose(P2, F @ P @ F.T, atol=1e-9)
+
+
+def test_localise_is_the_information_form_update():
+    from fastslam_edu.core.measurement import jacobian_landmark, jacobian_pose, range_bearing
+    x, P = np.array([0.5, 0.2, 0.3]), np.diag([0.04, 0.04, 0.01])
+    L = np.array([[3.0, 1.0], [2.0, -1.5], [4.0, 3.0]])
+    C = np.repeat(np.eye(2)[None] * 0.01, 3, axis=0)
+    R = np.repeat(np.diag([0.05**2, 0.02**2])[None], 3, axis=0)
+    z = range_bearing(np.tile(x + [0.1, -0.05, 0.02], (3, 1)), L)
+    new, P2 = sa.localise(x, P, z, R, L, C)
+    # information form: P'^-1 = P^-1 + sum Hx^T (R + Hl C Hl^T)^-1 Hx,  x' = x + P' sum Hx^T S^-1 nu
+    info, grad = np.linalg.inv(P), np.zeros(3)
+    for i in range(3):
+        Hx, Hl = jacobian_pose(x[None], L[i][None])[0], jacobian_landmark(x[None], L[i][None])[0]
+        Si = np.linalg.inv(R[i] + Hl @ C[i] @ Hl.T)
+        info += Hx.T @ Si @ Hx
+        nu = z[i] - range_bearing(x[None], L[i][None])[0]
+        nu[1] = np.angle(np.exp(1j * nu[1]))
+        grad += Hx.T @ Si @ nu
+    assert np.allclose(P2, np.linalg.inv(info), atol=1e-10)
+    assert np.allclose(new, x + np.linalg.inv(info) @ grad, atol=1e-10)
+
+
+def test_incremental_start_stays_on_the_path_dead_reckoning_leaves(sim):
+    from fastslam_edu.datasets.events import groundtruth_at
+    data, stream, filt, log, settings = _log_and_truth(sim)
+    poses, labels, landmarks = sa.incremental_start(log, settings)
+    truth = groundtruth_at(data.robots[1], stream.t[log.keys])
+    error = np.sqrt(np.mean(np.sum((poses[:, :2] - truth[:, :2]) ** 2, axis=1)))
+    dead = np.sqrt(np.mean(np.sum((log.path[log.keys, :2] - truth[:, :2]) ** 2, axis=1)))
+    assert error < 0.4 * dead
+    assert accuracy(labels, np.arange(len(landmarks)), landmarks, data, stream.landmark) >= 0.95
+    assert settings.incremental_start

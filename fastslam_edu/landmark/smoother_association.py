@@ -54,8 +54,10 @@ penalised cost falls.
 **Restarts** (:func:`smooth_association`, :func:`starts_from_filter`): from the filter's best particle (its history
 gives the first correspondences, its map and the filter's mean path the start); from the same path solved and every
 sighting assigned again from an empty map, nearest frames first (:func:`reassigned_start`); and optionally from the
-next-heaviest particles with distinct maps and from the log solved in growing prefixes (:func:`grown_start`). The
-solution with the lowest final penalised cost is kept (``restarts``, ``grown_start``).
+next-heaviest particles with distinct maps and from the log solved in growing prefixes (:func:`grown_start`); and,
+once, from the log walked in time order with the map held fixed while each frame localises against it
+(:func:`incremental_start`, ``incremental_start``: no filter's path to inherit). The solution with the lowest final
+penalised cost is kept (``restarts``, ``grown_start``, ``incremental_start``).
 
 **Step (b) is most of the time**: its linear steps eliminate the map first
 (:mod:`fastslam_edu.landmark.smoother_association_solve`, the same solution as the smoother's sparse LU).
@@ -340,6 +342,103 @@ def grown_start(log: SightingLog, settings: SmootherAssociationParams, sensor=No
     return poses, labels, landmarks
 
 
+# --------------------------------------------------------------------------- the incremental start
+
+
+def motion_density(log: SightingLog) -> np.ndarray:
+    """:math:`Q_c = \\mathrm{diag}(\\sigma_v^2, \\sigma_v^2, \\sigma_\\omega^2)` (3, 3): the motion noise's densities
+    [m²/s, m²/s, rad²/s] (``sigma_xy``, ``sigma_theta`` in the odometry mode), as in
+    :func:`dead_reckoned_pose_covariance`."""
+    noise = log.params.motion_noise
+    density = (np.array([noise.sigma_v ** 2, noise.sigma_v ** 2, noise.sigma_omega ** 2]) if noise.mode == "control"
+               else np.array([noise.sigma_xy ** 2, noise.sigma_xy ** 2, noise.sigma_theta ** 2]))
+    return np.diag(density)
+
+
+def predict_pose(x, P, u, Q):
+    """The pose moved by the dead-reckoned motion ``u`` (3,) (in the frame of ``x``), :math:`x' = x \\oplus u`, and
+    its covariance :math:`P' = F P F^\\top + Q` with :math:`F = \\partial x' / \\partial x` (a heading error turns
+    into a position error along the way travelled). ``x`` (3,), ``P``, ``Q`` (3, 3)."""
+    c, s = math.cos(x[2]), math.sin(x[2])
+    F = np.array([[1.0, 0.0, -s * u[0] - c * u[1]], [0.0, 1.0, c * u[0] - s * u[1]], [0.0, 0.0, 1.0]])
+    return compose(x, u), F @ P @ F.T + Q
+
+
+def localise(x, P, z, R, landmarks, cov):
+    """One EKF update of the pose ``x`` (3,), ``P`` (3, 3) by sightings ``z`` (m, 2) (noise ``R`` (m, 2, 2)) of the
+    landmarks ``landmarks`` (m, 2), held fixed with their covariances ``cov`` (m, 2, 2):
+
+    .. math::
+
+        S = H_x P H_x^\\top + \\mathrm{blockdiag}(R_i + H_{l,i} \\Sigma_i H_{l,i}^\\top), \\quad
+        K = P H_x^\\top S^{-1}, \\quad x \\leftarrow x + K\\nu, \\quad P \\leftarrow (I - K H_x) P.
+
+    Returns ``(x, P)``."""
+    m = len(z)
+    X = np.broadcast_to(x, (m, 3))
+    Hx = jacobian_pose(X, landmarks).reshape(2 * m, 3)
+    Hl = jacobian_landmark(X, landmarks)
+    nu = innovation(z, range_bearing(X, landmarks)).ravel()
+    S = Hx @ P @ Hx.T
+    for i in range(m):
+        S[2 * i:2 * i + 2, 2 * i:2 * i + 2] += R[i] + Hl[i] @ cov[i] @ Hl[i].T
+    K = P @ Hx.T @ np.linalg.inv(S)
+    P = (np.eye(3) - K @ Hx) @ P
+    return x + K @ nu, 0.5 * (P + P.T)
+
+
+def _map_frame(x, P, z, R, chosen, lms: list, cov: list) -> np.ndarray:
+    """After :func:`localise`: each of the frame's sightings given to a landmark updates it (EKF at the pose ``x``,
+    the pose's uncertainty ``P`` added to ``R``); one given "new" (``chosen == N``) starts one with covariance
+    :math:`G_z R G_z^\\top + G_x P G_x^\\top`. ``lms``, ``cov`` grow in place; returns the frame's labels."""
+    N = len(lms)
+    labels = np.full(len(z), OUTLIER, dtype=np.int64)
+    for i, j in enumerate(chosen.tolist()):
+        if j == N:
+            l = landmark_from_measurement(x[None], z[i][None])[0]
+            Gz = np.linalg.inv(jacobian_landmark(x[None], l[None])[0])
+            Gx = -Gz @ jacobian_pose(x[None], l[None])[0]
+            lms.append(l)
+            cov.append(Gz @ R[i] @ Gz.T + Gx @ P @ Gx.T)
+            labels[i] = len(lms) - 1
+        elif 0 <= j < N:
+            Hx = jacobian_pose(x[None], lms[j][None])[0]
+            lms[j], cov[j] = _ekf(x, z[i], R[i] + Hx @ P @ Hx.T, lms[j], cov[j])
+            labels[i] = j
+    return labels
+
+
+def incremental_start(log: SightingLog, settings: SmootherAssociationParams):
+    """A start that does not read the filter: the log walked once in time order, each camera frame (1) predicted
+    from the last by dead reckoning (:func:`predict_pose`, the motion noise's densities times the time since),
+    (2) assigned jointly (:func:`assign_frame`) against the map so far with the pose's covariance in :math:`d^2`,
+    (3) localised against the landmarks it was given, the map held fixed (:func:`localise`), (4) mapped
+    (:func:`_map_frame`). Single-hypothesis, so it can lose its way; it competes with the filter's starts by the
+    final penalised cost. (MR.CLAM Dataset 6 robot 1, seed 0: its path 0.39 m off groundtruth after alignment, the
+    filter's 1.84 m.) Returns ``(poses (N_k, 3), labels (n,), landmarks (N, 2))``."""
+    stream, path, Q = log.stream, log.path, motion_density(log)
+    labels = np.full(len(stream.z), OUTLIER, dtype=np.int64)
+    lms, cov = [], []
+    steps = np.flatnonzero(np.diff(stream.offsets))
+    frame_pose = np.zeros((len(steps), 3))
+    x, P, last = path[0].copy(), np.zeros((3, 3)), 0
+    for f, k in enumerate(steps.tolist()):
+        x, P = predict_pose(x, P, relative(path[last], path[k]), Q * (stream.t[k] - stream.t[last]))
+        last = k
+        a, b = stream.offsets[k], stream.offsets[k + 1]
+        z, R = stream.z[a:b], log.R[a:b]
+        L, C = np.array(lms).reshape(-1, 2), np.array(cov).reshape(-1, 2, 2)
+        d2 = mahalanobis_d2(np.tile(x, (b - a, 1)), z, R, L, C, np.tile(P, (b - a, 1, 1)))
+        chosen = assign_frame(d2, settings.gate, settings.penalty)
+        old = np.flatnonzero((chosen >= 0) & (chosen < len(lms)))
+        if len(old):
+            x, P = localise(x, P, z[old], R[old], L[chosen[old]], C[chosen[old]])
+        labels[a:b] = _map_frame(x, P, z, R, chosen, lms, cov)
+        frame_pose[f] = x
+    poses = poses_between(log.keys, steps, frame_pose, path) if len(steps) else path[log.keys]
+    return poses, labels, np.array(lms).reshape(-1, 2)
+
+
 def starts_from_filter(log: SightingLog, result, n: int, grown: bool = False):
     """Up to ``n`` starts from a run of :func:`fastslam_edu.landmark.association.run_unknown`, each
     ``(poses (N_k, 3), labels (n,) or None, landmarks (N, 2))`` or a name: its best particle (the filter's mean path,
@@ -416,6 +515,10 @@ def smooth_association(stream: EventStream, filter_result, params: FastSLAMParam
             costs.append(state.cost)
             if best is None or state.cost < best.cost:
                 best = state
+    if settings.incremental_start:  # one start that does not depend on the runs
+        state = alternate(log, *incremental_start(log, settings), settings)
+        costs.append(state.cost)
+        best = state if state.cost < best.cost else best
     N = len(best.landmarks)
     pose_mean = poses_between(np.arange(len(stream)), log.keys, best.poses, log.path)
     return SmootherAssociationResult(
@@ -431,4 +534,4 @@ __all__ = ["OUTLIER", "INFEASIBLE", "SightingLog", "prepare_log", "sighting_pose
            "frame_costs", "assign_frame", "assign_sightings", "compact", "solve_labelled", "two_clusters",
            "split_moves", "merge_moves", "prune_landmarks", "maximum_clique", "loop_candidates",
            "consistent_pairs", "loop_closures", "alternate", "grown_start", "reassigned_start", "starts_from_filter",
-           "smooth_association"]
+           "motion_density", "predict_pose", "localise", "incremental_start", "smooth_association"]
