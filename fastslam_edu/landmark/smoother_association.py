@@ -54,7 +54,7 @@ penalised cost falls.
 **Restarts** (:func:`smooth_association`, :func:`starts_from_filter`): from the filter's best particle (its history
 gives the first correspondences, its map and the filter's mean path the start); from the same path solved and every
 sighting assigned again from an empty map, nearest frames first (:func:`reassigned_start`); and optionally from the
-next-heaviest particles with distinct maps and from the log solved in growing prefixes (:func:`grown_start`); and,
+next-heaviest particles with distinct maps, from the log solved in growing prefixes (:func:`grown_start`), and,
 once, from the log walked in time order with the map held fixed while each frame localises against it
 (:func:`incremental_start`, ``incremental_start``: no filter's path to inherit). The solution with the lowest final
 penalised cost is kept (``restarts``, ``grown_start``, ``incremental_start``).

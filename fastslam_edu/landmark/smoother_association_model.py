@@ -51,7 +51,9 @@ class SmootherAssociationParams(Params):
         particles with distinct maps.
     incremental_start : bool
         Also start, once, from the log walked in time order, each frame localised against the map so far
-        (:func:`~.smoother_association.incremental_start`; MR.CLAM seed 0: D6 R1 0.68 -> 0.76 of the oracle).
+        (:func:`~.smoother_association.incremental_start`). Off by default: it helps where the filter's path went
+        astray, costs time on every log, and one wrong match early can derail it (figures:
+        ``benchmarks/association_mrclam.py --smoother``).
     grown_start : bool
         Also start from the log solved in growing prefixes (:func:`~.smoother_association.grown_start`): one solve per
         ``window_s`` of log, too slow for the time target on long logs (MR.CLAM Dataset 1: minutes).
@@ -67,7 +69,7 @@ class SmootherAssociationParams(Params):
     min_loop_landmarks: int = 3
     max_rounds: int = 8
     restarts: int = 2
-    incremental_start: bool = True
+    incremental_start: bool = False
     grown_start: bool = False
     solver: SolverSettings = ASSOCIATION_SOLVER
     window_s: float = 60.0
