@@ -690,3 +690,32 @@ def test_resampling_the_maps_in_place_equals_fancy_indexing():
             order = copy_order(idx).tolist()
             assert sorted(order) == [m for m in range(M) if idx[m] != m]
             assert all(idx[p] == p or p not in order[:i] for i, m in enumerate(order) for p in [idx[m]])
+
+
+def test_the_range_pre_gate_never_rules_out_a_pair_the_gate_keeps():
+    """outside_range_gate (a bound on d^2 from the range alone) against association_loglik's d^2 on random poses,
+    landmarks, covariances, clouds and times unseen: every pair it rules out is beyond the gate; and it does rule
+    out a landmark 3 m further than the sighting's range (it is not vacuous)."""
+    from fastslam_edu.landmark.association_likelihood import outside_range_gate
+
+    rng = np.random.default_rng(11)
+    rules = AssociationParams().rules()
+    ruled_out = 0
+    for _ in range(3000):
+        pose = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)])
+        mu = pose[:2] + rng.uniform(-6, 6, 2)
+        A = rng.normal(0, 0.3, (2, 2))
+        sigma = A @ A.T + 1e-4 * np.eye(2)
+        B = rng.normal(0, 0.1, (3, 3))
+        cloud = B @ B.T
+        z = np.array([rng.uniform(0.3, 8.0), rng.uniform(-1.0, 1.0)])
+        R = np.diag([rng.uniform(0.02, 0.3) ** 2, rng.uniform(0.01, 0.05) ** 2])
+        unseen = rng.uniform(0, 30)
+        _, d2 = association_loglik(pose, z, R, mu, sigma, cloud, unseen, rules)
+        if outside_range_gate(pose, z, R, mu, sigma, cloud, unseen, rules):
+            ruled_out += 1
+            assert d2 > rules.new_chi2
+    assert ruled_out > 1000
+    far = np.array([np.hypot(*mu - pose[:2]) + 3.0, 0.0])
+    small = np.eye(2) * 0.01
+    assert outside_range_gate(pose, far, np.diag([0.07**2, 0.02**2]), mu, small, np.zeros((3, 3)), 0.0, rules)

@@ -102,7 +102,8 @@ from fastslam_edu.core.resampling import in_increasing_order
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association_history import best_history, merge_copies
-from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik
+from fastslam_edu.landmark.association_likelihood import (association_loglik, new_landmark_loglik,
+                                                          outside_range_gate)
 from fastslam_edu.landmark.association_params import (INDEPENDENT, JOINT, AssociationParams, MapParticles,
                                                       initial_particles)
 from fastslam_edu.landmark.fastslam_step import (motion_prediction_through_segment, move_through_segment,
@@ -139,6 +140,8 @@ def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
     ll = np.full((n, K), -math.inf)
     for i in range(n):
         for k in range(K):
+            if outside_range_gate(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k], rules):
+                continue  # beyond the gate on its range alone: no candidate, at a fraction of the cost
             lik, d2 = association_loglik(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k],
                                          rules)
             if d2 <= rules.new_chi2:

@@ -78,6 +78,32 @@ def innovation_with_pose(pose, z, R, mu, sigma, P, rules):
     return nu0, nu1, q00 + a - (1.0 - rules.range_scale ** 2) * R[0, 0], q01 + b, q11 + d
 
 
+@njit(cache=True, _nrt=False)
+def outside_range_gate(pose, z, R, mu, sigma, cloud, unseen_s, rules):
+    """True when sighting ``z`` cannot fall within the gate :math:`d_0^2` (``rules.new_chi2``) of the landmark at
+    ``mu`` (2,), ``sigma`` (2, 2), whatever its bearing: a test on the range alone, a few multiplications instead of
+    :func:`association_loglik`'s innovation.
+
+    For any 2×2 covariance :math:`Q`, :math:`\\nu^\\top Q^{-1} \\nu \\ge \\nu_r^2 / Q_{rr}` (the squared distance
+    of one component alone is never larger). The range row of :math:`H` is a unit vector, so
+    :math:`(H\\Sigma H^\\top)_{rr} \\le \\operatorname{tr}\\Sigma`, and that of :math:`H_x` has a unit :math:`(x, y)`
+    part and no :math:`\\theta` part, so :math:`(H_x P H_x^\\top)_{rr} \\le P_{xx} + P_{yy}` (``cloud`` plus the
+    drift of :func:`drift_covariance`). Hence :math:`d^2 > d_0^2` whenever
+    :math:`\\nu_r^2 > d_0^2\\,(\\operatorname{tr}\\Sigma + s^2 R_{rr} + P_{xx} + P_{yy})`, with a margin of
+    :data:`RANGE_GATE_MARGIN` for round-off: the pairs it rules out are pairs the gate rules out."""
+    dx, dy = mu[0] - pose[0], mu[1] - pose[1]
+    nu_r = z[0] - math.sqrt(dx * dx + dy * dy)
+    v_xy, _ = drift_variances(unseen_s, rules)
+    bound = (sigma[0, 0] + sigma[1, 1] + rules.range_scale ** 2 * R[0, 0] + cloud[0, 0] + cloud[1, 1]
+             + 2.0 * v_xy)
+    return nu_r * nu_r > RANGE_GATE_MARGIN * rules.new_chi2 * bound
+
+
+#: The factor by which :func:`outside_range_gate` widens its bound, so that round-off never rules out a pair
+#: the gate itself would keep.
+RANGE_GATE_MARGIN = 1.0 + 1e-6
+
+
 @njit(cache=True)
 def association_loglik(pose, z, R, mu, sigma, cloud, unseen_s, rules):
     """What the association decides by, for one landmark: ``(loglik, d2)`` of the sighting with
@@ -112,4 +138,4 @@ def best_landmark(P, m, z, R, taken, cloud, t, rules):
 
 
 __all__ = ["new_landmark_loglik", "pose_jacobian", "pose_term", "drift_variances", "drift_covariance",
-           "innovation_with_pose", "association_loglik", "best_landmark"]
+           "innovation_with_pose", "outside_range_gate", "RANGE_GATE_MARGIN", "association_loglik", "best_landmark"]
