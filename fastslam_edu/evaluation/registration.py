@@ -56,9 +56,8 @@ def point_grid(B, cell):
     nx, ny = int((hi[0] - x0) / side) + 2, int((hi[1] - y0) / side) + 2
     key = ((B[:, 0] - x0) / side).astype(np.int64) * ny + ((B[:, 1] - y0) / side).astype(np.int64)
     items = np.argsort(key, kind="stable")
-    start = np.zeros(nx * ny + 1, dtype=np.int64)
-    np.add.at(start, key + 1, 1)
-    return float(x0), float(y0), side, nx, ny, np.cumsum(start), items
+    start = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=nx * ny))]).astype(np.int64)
+    return float(x0), float(y0), side, nx, ny, start, items
 
 
 @njit(cache=True, _nrt=False)

@@ -382,11 +382,11 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
         out.totals[LANDMARKS_CREATED] += out.next_ident[0] - before
         out.instant_of[a:b] = q
         idx = draw_if_degenerate(w, normalise_weights(P.logw, w), s, rng)  # step 3, as with barcodes
-        for m in range(M):
-            out.parents[q, m] = idx[m] if idx.shape[0] > 0 else m
         if idx.shape[0] > 0:
             select_maps(P, idx)  # the maps of this filter's particles (variable size) copied
             out.totals[MAPS_RESAMPLED] += 1
+        for m in range(M):
+            out.parents[q, m] = idx[m] if idx.shape[0] > 0 else m
         out.totals[INSTANTS_DONE] += 1
         record_poses(P.poses, w, out.pose_mean[last], out.pose_best[last])  # step 4
     return segments.shape[0]
