@@ -301,16 +301,31 @@ def expected_measurement(pose, m):
     """:math:`\\hat z = h(x, m)` and :math:`H = \\partial h / \\partial m` for one pose (3,) and landmark (2,).
 
     Returns ``r, phi, h00, h01, h10, h11``: range [m], bearing [rad] (wrapped) and
-    :math:`H = \\begin{pmatrix} \\delta_x/r & \\delta_y/r \\ -\\delta_y/r^2 & \\delta_x/r^2 \\end{pmatrix}`.
+    :math:`H = \\begin{pmatrix} \\delta_x/r & \\delta_y/r \\ -\\delta_y/r^2 & \\delta_x/r^2 \\end{pmatrix}`
+    (:func:`range_and_jacobian`, :func:`expected_bearing`).
     """
+    r, h00, h01, h10, h11 = range_and_jacobian(pose, m)
+    return r, expected_bearing(pose, m), h00, h01, h10, h11
+
+
+@njit(cache=True, inline="always")
+def range_and_jacobian(pose, m):
+    """The range :math:`r = \\sqrt{\\delta_x^2 + \\delta_y^2}` [m] of landmark ``m`` (2,) from ``pose`` (3,) and
+    :math:`H = \\partial h / \\partial m`: ``r, h00, h01, h10, h11``. No bearing, so no arctangent: what a
+    test on the range alone, or :math:`H` alone, needs (:func:`expected_measurement` adds the bearing)."""
     dx = m[0] - pose[0]
     dy = m[1] - pose[1]
-    q = dx * dx + dy * dy
-    r = math.sqrt(q)
-    phi = wrap_angle_kernel(math.atan2(dy, dx) - pose[2])
+    r = math.sqrt(dx * dx + dy * dy)
     inv_r = 1.0 / r  # one division, then products
     inv_q = inv_r * inv_r
-    return r, phi, dx * inv_r, dy * inv_r, -dy * inv_q, dx * inv_q
+    return r, dx * inv_r, dy * inv_r, -dy * inv_q, dx * inv_q
+
+
+@njit(cache=True, inline="always")
+def expected_bearing(pose, m):
+    """The bearing :math:`\\phi = \\operatorname{atan2}(\\delta_y, \\delta_x) - \\theta` [rad], wrapped, of landmark
+    ``m`` (2,) from ``pose`` (3,)."""
+    return wrap_angle_kernel(math.atan2(m[1] - pose[1], m[0] - pose[0]) - pose[2])
 
 
 @njit(cache=True, inline="always")

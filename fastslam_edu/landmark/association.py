@@ -105,7 +105,7 @@ from fastslam_edu.landmark.association_history import best_history, merge_copies
 from fastslam_edu.landmark.association_likelihood import (association_loglik, new_landmark_loglik,
                                                           outside_range_gate)
 from fastslam_edu.landmark.association_params import (INDEPENDENT, JOINT, AssociationParams, MapParticles,
-                                                      initial_particles)
+                                                      association_workspace, initial_particles)
 from fastslam_edu.landmark.fastslam_step import (motion_prediction_through_segment, move_through_segment,
                                                  normalise_weights, pose_covariance, record_poses, segment_normals)
 from fastslam_edu.landmark.joint_compatibility import joint_slots
@@ -120,7 +120,6 @@ from fastslam_edu.landmark.step_records import RESAMPLER_CODES, Log, Settings
 # ---------------------------------------------------------------- the decision of one particle at one instant
 
 
-@njit(cache=True)
 def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
     """The association of one instant's sightings ``z`` (n, 2) for particle ``m`` at ``pose`` (3,) (its own pose,
     or FastSLAM 2.0's motion prediction :math:`\\bar x`, with ``cloud`` its covariance): ``(slot, loglik)`` (n,), (n,),
@@ -136,29 +135,34 @@ def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
     (:func:`joint_slots`; when it gives up, the greedy pairing), a sighting with candidates may then be new; each
     sighting keeps its own :math:`\\ell_{ik}` as its log-likelihood.
     """
+    work = association_workspace(z.shape[0], P.mu.shape[1])
+    choose_landmarks_kernel(P, m, pose, (z, R, t), cloud, rules, work)
+    return work.slot.copy(), work.chosen.copy()
+
+
+@njit(cache=True, _nrt=False)
+def choose_landmarks_kernel(P, m, pose, instant, cloud, rules, work):
+    """:func:`choose_landmarks` of ``instant = (z (n, 2), R (n, 2, 2), t)``, its decision written into
+    ``work.slot[:n]`` and ``work.chosen[:n]`` (``work``: an
+    :class:`~fastslam_edu.landmark.association_params.AssociationWorkspace`): it makes no array."""
+    z, R, t = instant
     n, K = z.shape[0], P.n[m]
-    ll = np.full((n, K), -math.inf)
-    for i in range(n):
-        for k in range(K):
-            if outside_range_gate(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k], rules):
-                continue  # beyond the gate on its range alone: no candidate, at a fraction of the cost
-            lik, d2 = association_loglik(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k],
-                                         rules)
-            if d2 <= rules.new_chi2:
-                ll[i, k] = lik
-    slot = np.full(n, -1, dtype=np.int64)
-    chosen = np.full(n, -math.inf)
-    if rules.association == JOINT and n > 1 and K > 0 and joint_slots(P, m, pose, cloud, (z, R, t), rules, ll, slot):
+    ll, slot, chosen = work.ll[:n, :K], work.slot[:n], work.chosen[:n]
+    ll[:, :] = -math.inf
+    slot[:] = -1
+    chosen[:] = -math.inf
+    candidate_logliks(P, m, pose, instant, cloud, rules, ll)
+    if rules.association == JOINT and n > 1 and K > 0 and joint_slots(P, m, pose, cloud, instant, rules, work):
         for i in range(n):
             if slot[i] >= 0:
                 chosen[i] = ll[i, slot[i]]
-        return slot, chosen
+        return
     if rules.association == INDEPENDENT:
         for i in range(n):
             for k in range(K):  # the first most likely landmark (np.argmax's), if any is a candidate
                 if ll[i, k] > chosen[i]:
                     slot[i], chosen[i] = k, ll[i, k]
-        return slot, chosen
+        return
     for _ in range(min(n, K)):
         best, bi, bk = -math.inf, -1, -1
         for i in range(n):
@@ -170,30 +174,55 @@ def choose_landmarks(P, m, pose, z, R, cloud, t, rules):
         slot[bi], chosen[bi] = bk, best
         ll[bi, :] = -math.inf  # the sighting is used, and so is the landmark
         ll[:, bk] = -math.inf
-    return slot, chosen
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
+def candidate_logliks(P, m, pose, instant, cloud, rules, ll):
+    """The candidates of :func:`choose_landmarks`: ``ll[i, k]`` (n, N) set to :math:`\\ell_{ik}`
+    (:func:`association_loglik`) for every sighting ``i`` of ``instant = (z, R, t)`` and landmark ``k`` of
+    particle ``m`` within the gate, :math:`d^2_{ik} \\le d_0^2`; the others are left as they are (-inf).
+    (Without reference counts: it only reads the particle set and writes ``ll``.)"""
+    z, R, t = instant
+    for i in range(z.shape[0]):
+        for k in range(P.n[m]):
+            if outside_range_gate(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k], rules):
+                continue  # beyond the gate on its range alone: no candidate, at a fraction of the cost
+            lik, d2 = association_loglik(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k],
+                                         rules)
+            if d2 <= rules.new_chi2:
+                ll[i, k] = lik
+
+
 def associate_particle(P, m, instant, rules, next_ident, out, cloud):
     """The sightings of one instant, ``instant = (z (n, 2), R (n, 2, 2), t)``, for particle ``m`` (FastSLAM 1.0):
     association at the particle's pose (:func:`choose_landmarks`, ``cloud`` (3, 3) the pose covariance it adds),
     then :func:`apply_associations`. ``out`` (n,) receives the identity of the landmark each sighting went to
     (-1: none); ``next_ident`` (1,) is the shared counter of new identities."""
-    z, R, t = instant
-    slot, lls = choose_landmarks(P, m, P.poses[m], z, R, cloud, t, rules)
-    apply_associations(P, m, instant, (slot, lls), rules, next_ident, out)
+    work = association_workspace(instant[0].shape[0], P.mu.shape[1])
+    associate_particle_kernel(P, m, instant, rules, cloud, work, (next_ident, out))
+
+
+@njit(cache=True, _nrt=False)
+def associate_particle_kernel(P, m, instant, rules, cloud, work, record):
+    """:func:`associate_particle` in the arrays of ``work`` (an
+    :class:`~fastslam_edu.landmark.association_params.AssociationWorkspace`), ``record = (next_ident, out)``: the
+    filter's step 2, per particle, making no array."""
+    choose_landmarks_kernel(P, m, P.poses[m], instant, cloud, rules, work)
+    apply_associations(P, m, instant, rules, work, record)
 
 
 @njit(cache=True)
-def associate_particle_improved(P, m, instant, rules, next_ident, out, prediction, rng):
+def associate_particle_improved(P, m, instant, rules, prediction, rng, work, record):
     """The same with FastSLAM 2.0's proposal: the association is decided at the motion prediction
     ``prediction = (x_bar (3,), cov (3, 3))`` with its covariance (:func:`choose_landmarks`); then each sighting
     assigned to a landmark seen at least ``rules.min_count`` times moves the particle's pose by the proposal
     (:func:`fastslam_edu.landmark.proposal.improved_pose_kernel`, in the sightings' order) and weighs it by
-    :math:`\\mathcal N(z; \\hat z(\\bar x), S)`; :func:`apply_associations` then updates the map from the new pose."""
-    z, R, t = instant
+    :math:`\\mathcal N(z; \\hat z(\\bar x), S)`; :func:`apply_associations` then updates the map from the new pose.
+    ``work``, ``record``: as :func:`associate_particle_kernel`'s."""
+    z, R, _ = instant
     x_bar, cov = prediction[0].copy(), prediction[1].copy()
-    slot, lls = choose_landmarks(P, m, x_bar, z, R, cov, t, rules)
+    choose_landmarks_kernel(P, m, x_bar, instant, cov, rules, work)
+    slot, lls = work.slot, work.chosen
     e = np.empty(2)
     for i in range(z.shape[0]):
         k = slot[i]
@@ -201,13 +230,15 @@ def associate_particle_improved(P, m, instant, rules, next_ident, out, predictio
             continue
         e[0], e[1] = rng.standard_normal(), rng.standard_normal()
         _, lls[i] = improved_pose_kernel(P.poses[m], x_bar, cov, P.mu[m, k], P.sigma[m, k], z[i], R[i], e)
-    apply_associations(P, m, instant, (slot, lls), rules, next_ident, out)
+    apply_associations(P, m, instant, rules, work, record)
 
 
-@njit(cache=True)
-def apply_associations(P, m, instant, chosen, rules, next_ident, out):
-    """Update, weight and negative evidence for particle ``m`` once ``chosen = (slot (n,), loglik (n,))`` is decided
-    (:func:`choose_landmarks`); ``out`` (n,) receives the identity of the landmark each sighting went to.
+@njit(cache=True, _nrt=False)
+def apply_associations(P, m, instant, rules, work, record):
+    """Update, weight and negative evidence for particle ``m`` once ``work.slot[:n]``, ``work.chosen[:n]`` (the slot
+    and log-likelihood of each sighting) are decided (:func:`choose_landmarks_kernel`); ``record = (next_ident,
+    out)``: ``out`` (n,) receives the identity of the landmark each sighting went to, ``next_ident`` (1,) is the
+    shared counter of new identities.
 
     An assigned sighting updates its landmark's EKF (lines 12–17 of table 13.1, or a re-initialisation:
     :func:`measure_landmark`) and multiplies the weight by its likelihood (line 18, tempered by the exponent
@@ -216,9 +247,10 @@ def apply_associations(P, m, instant, chosen, rules, next_ident, out):
     correspondences). A new landmark started beyond the confirmation range :math:`r^*` is not committed.
     """
     z, R, t = instant
-    slot, lls = chosen
-    taken = np.zeros(P.mu.shape[1], dtype=np.bool_)
-    split = splitting_sightings(P, m, instant, slot, rules)
+    next_ident, out = record
+    slot, lls, split, taken = work.slot, work.chosen, work.split, work.taken
+    taken[:] = False
+    splitting_sightings(P, m, instant, rules, work)
     for i in range(z.shape[0]):
         k = slot[i]
         if k < 0:
@@ -264,17 +296,18 @@ def measure_landmark(P, m, k, z, R, rules, fresh):
         update_landmark_kernel(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k], math.inf)
 
 
-@njit(cache=True)
-def splitting_sightings(P, m, instant, slot, rules):
-    """(n,) bool: sighting ``i`` went to a provisional landmark of particle ``m`` that another sighting of the same
+@njit(cache=True, _nrt=False)
+def splitting_sightings(P, m, instant, rules, work):
+    """``work.split[:n]`` (bool): sighting ``i`` went to a provisional landmark of particle ``m`` that another sighting of the same
     instant, left without a landmark (``slot`` -1), also fits (:math:`d^2 \\le d_0^2` with the landmark's
     :math:`Q = H\\Sigma H^\\top + R`): two things seen at once where the particle holds one, so the landmark
     splits (``rules.split``; all False without it)."""
     z, R, _ = instant
     n = z.shape[0]
-    split = np.zeros(n, dtype=np.bool_)
+    slot, split = work.slot, work.split
+    split[:n] = False
     if not rules.split:
-        return split
+        return
     for i in range(n):
         k = slot[i]
         if k < 0 or P.evidence[m, k] >= rules.n_confirm:
@@ -283,7 +316,6 @@ def splitting_sightings(P, m, instant, slot, rules):
             if j != i and slot[j] < 0 and innovation_statistics_kernel(P.poses[m], z[j], R[j], P.mu[m, k], P.sigma[m, k]).d2 \
                     <= rules.new_chi2:
                 split[i] = True
-    return split
 
 
 @njit(cache=True)
@@ -345,6 +377,16 @@ class AssociationRecord(NamedTuple):
     n_renames: np.ndarray
 
 
+@njit(cache=True, _nrt=False)
+def most_sightings(offsets):
+    """The most sightings of one instant of a stream whose instant ``q`` holds sightings ``offsets[q]`` to
+    ``offsets[q + 1]``."""
+    most = 0
+    for q in range(offsets.shape[0] - 1):
+        most = max(most, offsets[q + 1] - offsets[q])
+    return most
+
+
 @njit(cache=True)
 def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
     """Steps 1–4 over ``segments`` (S, 2) with unknown correspondences.
@@ -358,6 +400,7 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
     M = P.poses.shape[0]
     w = out.w
     normals = segment_normals(segments, s.n_draws, M)
+    work = association_workspace(most_sightings(L.offsets), P.mu.shape[1])
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
         a, b = L.offsets[last], L.offsets[last + 1]
@@ -371,12 +414,12 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start):
         if x_start is None:  # (decided when numba compiles)
             cloud = pose_covariance(P.poses, w) * rules.pose_scale
             for m in range(M):
-                associate_particle(P, m, instant, rules, out.next_ident, out.assoc[m, a:b], cloud)
+                associate_particle_kernel(P, m, instant, rules, cloud, work, (out.next_ident, out.assoc[m, a:b]))
         else:
             x_bar, cov = motion_prediction_through_segment(x_start, L.u[first:last + 1], L.dt[first:last + 1], s)
             for m in range(M):
-                associate_particle_improved(P, m, instant, rules, out.next_ident, out.assoc[m, a:b],
-                                            (x_bar[m], cov[m]), rng)
+                associate_particle_improved(P, m, instant, rules, (x_bar[m], cov[m]), rng, work,
+                                            (out.next_ident, out.assoc[m, a:b]))
         for m in range(M):
             retire_landmarks(P, m, rules, out.renames, out.n_renames, q)
         out.totals[LANDMARKS_CREATED] += out.next_ident[0] - before
@@ -486,8 +529,9 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
 
 
 __all__ = ["INSTANTS_DONE", "MAPS_RESAMPLED", "LANDMARKS_CREATED", "N_ASSOCIATION_TOTALS", "choose_landmarks",
-           "associate_particle", "associate_particle_improved", "apply_associations", "measure_landmark",
-           "splitting_sightings", "select_maps",
-           "copy_map_particle", "AssociationRecord", "run_unknown_segments", "AssociationResult", "run_unknown"]
+           "choose_landmarks_kernel", "candidate_logliks", "associate_particle", "associate_particle_kernel",
+           "associate_particle_improved", "apply_associations", "measure_landmark", "splitting_sightings",
+           "select_maps", "copy_map_particle", "most_sightings", "AssociationRecord", "run_unknown_segments",
+           "AssociationResult", "run_unknown"]
 # Chapter 19 (notebooks/19_hidden_barcodes.ipynb) imports AssociationParams, initial_particles and
 # new_landmark_loglik from here: this module uses them, so they stay importable from it.

@@ -9,7 +9,7 @@ import math
 
 from numba import njit
 
-from fastslam_edu.core.ekf import LOG_2PI, expected_measurement, innovation_statistics_kernel
+from fastslam_edu.core.ekf import LOG_2PI, innovation_statistics_kernel, range_and_jacobian
 
 
 # ---------------------------------------------------------------- one particle, one sighting
@@ -27,23 +27,27 @@ def pose_jacobian(pose, mx, my):
     """:math:`H_x = \\partial h/\\partial x` (2, 3) of the range and bearing of a landmark at ``(mx, my)``, as
     ``(j0, j1, j2, k0, k1, k2)``: the range row, then the bearing row. A landmark moving by :math:`\\delta` and the
     robot moving by :math:`-\\delta` look the same, so the position columns are :math:`-H` of
-    :func:`fastslam_edu.core.ekf.expected_measurement`; turning the robot by :math:`\\delta\\theta` turns the
+    :func:`fastslam_edu.core.ekf.range_and_jacobian`; turning the robot by :math:`\\delta\\theta` turns the
     bearing by :math:`-\\delta\\theta`."""
-    _, _, h00, h01, h10, h11 = expected_measurement(pose, (mx, my))
+    _, h00, h01, h10, h11 = range_and_jacobian(pose, (mx, my))
     return -h00, -h01, 0.0, -h10, -h11, -1.0
 
 
 @njit(cache=True, _nrt=False)
-def pose_term(pose, mx, my, cloud):
+def pose_term(pose, mx, my, cloud, v_xy=0.0, v_theta=0.0):
     """:math:`H_x P H_x^\\top` (``a, b, d``: entries 00, 01, 11) for a landmark at ``(mx, my)``: the pose
-    covariance ``cloud`` (3, 3) of the particle set carried into measurement space."""
+    covariance :math:`P` = ``cloud`` (3, 3) of the particle set plus the drift
+    :math:`\\mathrm{diag}(v_{xy}, v_{xy}, v_\\theta)` (:func:`drift_variances`; :func:`drift_covariance` as numbers,
+    without an array) carried into measurement space."""
     j0, j1, j2, k0, k1, k2 = pose_jacobian(pose, mx, my)
+    drift = (v_xy, v_xy, v_theta)
     a = b = d = 0.0
     for u, cu, ku in ((0, j0, k0), (1, j1, k1), (2, j2, k2)):
         for v, cv, kv in ((0, j0, k0), (1, j1, k1), (2, j2, k2)):
-            a += cu * cloud[u, v] * cv
-            b += cu * cloud[u, v] * kv
-            d += ku * cloud[u, v] * kv
+            c = cloud[u, v] + drift[u] if u == v else cloud[u, v]
+            a += cu * c * cv
+            b += cu * c * kv
+            d += ku * c * kv
     return a, b, d
 
 
@@ -55,26 +59,27 @@ def drift_variances(unseen_s, rules):
     return rules.drift_xy ** 2 * unseen_s, rules.drift_theta ** 2 * unseen_s
 
 
-@njit(cache=True)
-def drift_covariance(cloud, unseen_s, rules):
-    """:math:`P`: ``cloud`` (3, 3) plus the drift of the pose over ``unseen_s`` seconds,
+@njit(cache=True, _nrt=False)
+def drift_covariance(cloud, unseen_s, rules, out):
+    """:math:`P`, written into ``out`` (3, 3): ``cloud`` (3, 3) plus the drift of the pose over ``unseen_s`` seconds,
     :math:`\\mathrm{diag}(\\sigma_{xy}^2, \\sigma_{xy}^2, \\sigma_\\theta^2)\\,\\min(\\Delta t, T)`
     (:func:`drift_variances`)."""
-    P = cloud.copy()
+    for u in range(3):
+        for v in range(3):
+            out[u, v] = cloud[u, v]
     v_xy, v_theta = drift_variances(unseen_s, rules)
-    P[0, 0] += v_xy
-    P[1, 1] += v_xy
-    P[2, 2] += v_theta
-    return P
+    out[0, 0] += v_xy
+    out[1, 1] += v_xy
+    out[2, 2] += v_theta
 
 
 @njit(cache=True, _nrt=False)
-def innovation_with_pose(pose, z, R, mu, sigma, P, rules):
-    """The innovation of one sighting and landmark with the pose covariance ``P`` (3, 3) added:
-    ``(nu0, nu1, q00, q01, q11)``, :math:`\\nu` and :math:`Q + H_x P H_x^\\top` (its range variance scaled by
-    ``rules.range_scale`` squared)."""
+def innovation_with_pose(pose, z, R, mu, sigma, P, rules, v_xy=0.0, v_theta=0.0):
+    """The innovation of one sighting and landmark with the pose covariance ``P`` (3, 3) added (and the drift
+    ``v_xy``, ``v_theta`` of :func:`pose_term`): ``(nu0, nu1, q00, q01, q11)``, :math:`\\nu` and
+    :math:`Q + H_x P H_x^\\top` (its range variance scaled by ``rules.range_scale`` squared)."""
     nu0, nu1, h00, h01, h10, h11, q00, q01, q11, d2, ll = innovation_statistics_kernel(pose, z, R, mu, sigma)
-    a, b, d = pose_term(pose, mu[0], mu[1], P)
+    a, b, d = pose_term(pose, mu[0], mu[1], P, v_xy, v_theta)
     return nu0, nu1, q00 + a - (1.0 - rules.range_scale ** 2) * R[0, 0], q01 + b, q11 + d
 
 
@@ -104,7 +109,7 @@ def outside_range_gate(pose, z, R, mu, sigma, cloud, unseen_s, rules):
 RANGE_GATE_MARGIN = 1.0 + 1e-6
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def association_loglik(pose, z, R, mu, sigma, cloud, unseen_s, rules):
     """What the association decides by, for one landmark: ``(loglik, d2)`` of the sighting with
     :math:`Q + H_x P H_x^\\top`, the pose uncertainty added to the innovation covariance.
@@ -114,8 +119,8 @@ def association_loglik(pose, z, R, mu, sigma, cloud, unseen_s, rules):
     seconds ago (:func:`drift_covariance`: ``rules.drift_xy``, ``rules.drift_theta`` per √s, for at most
     ``rules.drift_cap_s``).
     """
-    nu0, nu1, q00, q01, q11 = innovation_with_pose(pose, z, R, mu, sigma, drift_covariance(cloud, unseen_s, rules),
-                                                   rules)
+    v_xy, v_theta = drift_variances(unseen_s, rules)
+    nu0, nu1, q00, q01, q11 = innovation_with_pose(pose, z, R, mu, sigma, cloud, rules, v_xy, v_theta)
     det_q = q00 * q11 - q01 * q01
     d2 = (q11 * nu0 * nu0 - 2.0 * q01 * nu0 * nu1 + q00 * nu1 * nu1) / det_q
     return -0.5 * d2 - LOG_2PI - 0.5 * math.log(det_q), d2

@@ -11,9 +11,11 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from fastslam_edu.core.params import Params
 from fastslam_edu.landmark.fastslam import FastSLAMParams
+from fastslam_edu.landmark.joint_compatibility import N_PAIR_SLOTS
 from fastslam_edu.landmark.step_records import RESAMPLER_CODES
 
 #: The three rules of deciding one instant's sightings (``AssociationParams.association``), as the kernels take them
@@ -227,6 +229,45 @@ class MapParticles(NamedTuple):
     logw: np.ndarray
 
 
+class AssociationWorkspace(NamedTuple):
+    """The arrays one particle's decision at one instant is written into, made once per run
+    (:func:`association_workspace`), so that the kernels run per particle and instant make no array: making one,
+    and the reference counts of the arrays handed to a kernel that may make one, cost more than the arithmetic
+    of a small map. ``n``: the most sightings of one instant; ``N``: ``max_landmarks``.
+
+    ll (n, N): the candidates' log-likelihoods :math:`\\ell_{ik}`, -inf for a pair outside the gate; slot (n,):
+    the slot each sighting goes to (-1: new); chosen (n,): the log-likelihood it was decided by; taken (N,): the
+    landmarks a sighting of the instant went to; split (n,): the sightings whose landmark splits
+    (:func:`~fastslam_edu.landmark.association.splitting_sightings`); info (n, N, ``N_PAIR_SLOTS``), p0 (n,),
+    choice (n,), used (N,), total (``N_PAIR_SLOTS``,), excess and common (3, 3): joint compatibility's
+    (:mod:`fastslam_edu.landmark.joint_compatibility`).
+    """
+
+    ll: np.ndarray
+    slot: np.ndarray
+    chosen: np.ndarray
+    taken: np.ndarray
+    split: np.ndarray
+    info: np.ndarray
+    p0: np.ndarray
+    choice: np.ndarray
+    used: np.ndarray
+    total: np.ndarray
+    excess: np.ndarray
+    common: np.ndarray
+
+
+@njit(cache=True)
+def association_workspace(n, N):
+    """An :class:`AssociationWorkspace` for instants of at most ``n`` sightings and maps of at most ``N``
+    landmarks."""
+    return AssociationWorkspace(np.full((n, N), -math.inf), np.full(n, -1, dtype=np.int64), np.full(n, -math.inf),
+                                np.zeros(N, dtype=np.bool_), np.zeros(n, dtype=np.bool_),
+                                np.zeros((n, N, N_PAIR_SLOTS)), np.zeros(n), np.full(n, -1, dtype=np.int64),
+                                np.zeros(N, dtype=np.bool_), np.zeros(N_PAIR_SLOTS), np.zeros((3, 3)),
+                                np.zeros((3, 3)))
+
+
 def initial_particles(n_particles: int, max_landmarks: int, x0) -> MapParticles:
     """All particles at ``x0`` (3,), with empty maps and equal weights."""
     M, K = int(n_particles), int(max_landmarks)
@@ -267,4 +308,4 @@ class Rules(NamedTuple):
 
 
 __all__ = ["ASSOCIATION_RULES", "INDEPENDENT", "GREEDY", "JOINT", "confirmation_range", "AssociationParams",
-           "MapParticles", "initial_particles", "Rules"]
+           "MapParticles", "AssociationWorkspace", "association_workspace", "initial_particles", "Rules"]

@@ -27,11 +27,13 @@ PAIR_QUAD, PAIR_B, PAIR_G, PAIR_LOG_DET = 0, 1, 4, 13
 N_PAIR_SLOTS = 14
 
 
-@njit(cache=True)
-def joint_slots(P, m, pose, cloud, instant, rules, ll, slot):
+@njit(cache=True, _nrt=False)
+def joint_slots(P, m, pose, cloud, instant, rules, work):
     """The jointly most likely association of one instant's sightings (joint compatibility, Neira and Tardós
-    2001), written into ``slot`` (n,); False (``slot`` untouched) if there are more than ``JOINT_MAX_HYPOTHESES``
-    hypotheses. ``instant = (z (n, 2), R (n, 2, 2), t)``; ``ll`` (n, N) from :func:`choose_landmarks`.
+    2001), written into ``work.slot[:n]``; False (``slot`` untouched) if there are more than
+    ``JOINT_MAX_HYPOTHESES`` hypotheses. ``instant = (z (n, 2), R (n, 2, 2), t)``; ``work``: an
+    :class:`~fastslam_edu.landmark.association_params.AssociationWorkspace` whose ``ll[:n, :K]`` holds the
+    candidates of :func:`~fastslam_edu.landmark.association.choose_landmarks_kernel` (K: the particle's landmarks).
 
     Sighting :math:`i`'s candidates are the landmarks with ``ll[i, k] > -inf``, and a new landmark
     (:math:`p_0`). The sightings of one instant share the particle's pose error: the part of the drift that
@@ -44,7 +46,8 @@ def joint_slots(P, m, pose, cloud, instant, rules, ll, slot):
     rotation of the pose that lines every sighting up with a neighbour of its landmark is then one error, paid
     once, not an independent chance per sighting.
     """
-    n, K = ll.shape
+    n, K = instant[0].shape[0], P.n[m]
+    ll = work.ll[:n, :K]
     count, unseen = 1, math.inf
     for i in range(n):
         c = 1
@@ -55,18 +58,21 @@ def joint_slots(P, m, pose, cloud, instant, rules, ll, slot):
         count *= c
         if count > JOINT_MAX_HYPOTHESES:
             return False
-    info = pair_information(P, m, pose, instant, unseen, rules, ll)
-    p0 = np.empty(n)
+    pair_information(P, m, pose, instant, unseen, rules, work)
+    p0 = work.p0[:n]
     for i in range(n):
         p0[i] = new_landmark_loglik(instant[1][i], rules.new_chi2)
-    best_joint_hypothesis(info, ll, p0, drift_covariance(cloud, unseen, rules), slot)
+    drift_covariance(cloud, unseen, rules, work.common)
+    best_joint_hypothesis(work.info[:n, :K], ll, p0, work.common, work.slot[:n],
+                          (work.choice[:n], work.used[:K], work.total))
     return True
 
 
-@njit(cache=True)
-def pair_information(P, m, pose, instant, unseen, rules, ll):
-    """What each candidate pair ``(i, k)`` (``ll[i, k] > -inf``) adds to a joint hypothesis
-    (:func:`joint_loglik`): (n, K, :data:`N_PAIR_SLOTS`), :math:`\\nu^\\top D^{-1}\\nu`, :math:`H_x^\\top D^{-1}\\nu`
+@njit(cache=True, _nrt=False)
+def pair_information(P, m, pose, instant, unseen, rules, work):
+    """What each candidate pair ``(i, k)`` (``work.ll[i, k] > -inf``) adds to a joint hypothesis
+    (:func:`joint_loglik`), written into ``work.info[i, k]`` (:data:`N_PAIR_SLOTS`,) (the other pairs' rows are not
+    read, and not written): :math:`\\nu^\\top D^{-1}\\nu`, :math:`H_x^\\top D^{-1}\\nu`
     (3), :math:`H_x^\\top D^{-1} H_x` (3×3, row-major) and :math:`\\log\\det D` at the slots ``PAIR_QUAD``,
     ``PAIR_B``, ``PAIR_G``, ``PAIR_LOG_DET``.
 
@@ -75,10 +81,10 @@ def pair_information(P, m, pose, instant, unseen, rules, ll):
     :math:`H_x P_c H_x^\\top` added back it is the covariance the landmark is decided by alone
     (:func:`association_loglik`)."""
     z, R, t = instant
-    n, K = ll.shape
-    info = np.zeros((n, K, N_PAIR_SLOTS))
+    n, K = z.shape[0], P.n[m]
+    ll, info = work.ll, work.info
     common_xy, common_theta = drift_variances(unseen, rules)
-    excess = np.zeros((3, 3))  # the landmark's own drift beyond the common part
+    excess = work.excess  # the landmark's own drift beyond the common part (only its diagonal is written)
     for i in range(n):
         for k in range(K):
             if ll[i, k] == -math.inf:
@@ -99,21 +105,19 @@ def pair_information(P, m, pose, instant, unseen, rules, ll):
                     info[i, k, PAIR_G + 3 * u + v] = (hr[u] * (i00 * hr[v] + i01 * hb[v])
                                                  + hb[u] * (i01 * hr[v] + i11 * hb[v]))
             info[i, k, PAIR_LOG_DET] = math.log(det)
-    return info
 
 
-@njit(cache=True)
-def best_joint_hypothesis(info, ll, p0, Pc, slot):
+@njit(cache=True, _nrt=False)
+def best_joint_hypothesis(info, ll, p0, Pc, slot, scratch):
     """Every joint hypothesis, scored (:func:`joint_slots`); the best is written into ``slot`` (n,) (-1: new).
 
     The hypotheses are counted like an odometer: sighting 0's choice turns fastest, through its candidates
     (``ll[i, k] > -inf``) and "new" (-1); a hypothesis that gives one landmark two sightings is skipped.
     ``info`` from :func:`pair_information`, ``p0`` (n,) :math:`\\log p_0`, ``Pc`` (3, 3) the common pose
-    covariance."""
+    covariance; ``scratch = (choice (n,) int, used (N,) bool, total (N_PAIR_SLOTS,))`` the arrays it counts in."""
     n, K = ll.shape
-    choice = np.full(n, -1, dtype=np.int64)
-    used = np.zeros(K, dtype=np.bool_)
-    total = np.zeros(N_PAIR_SLOTS)
+    choice, used, total = scratch
+    choice[:] = -1
     best = -math.inf
     while True:
         # (np.int64(0), not 0: a literal 0 would make numba compile joint_loglik a second time, for the constant)

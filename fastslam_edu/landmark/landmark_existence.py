@@ -10,7 +10,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.ekf import expected_measurement, initialise_landmark_kernel
+from fastslam_edu.core.ekf import expected_bearing, initialise_landmark_kernel, range_and_jacobian
 
 
 @njit(cache=True, _nrt=False)
@@ -54,9 +54,10 @@ def remove_landmark(P, m, k):
 
 @njit(cache=True, _nrt=False)
 def in_view(pose, mu, rules):
-    """Whether a landmark at ``mu`` is inside the camera's field of view and range from ``pose``."""
-    r, phi, _, _, _, _ = expected_measurement(pose, mu)
-    return rules.min_range <= r <= rules.max_range and abs(phi) <= rules.fov
+    """Whether a landmark at ``mu`` is inside the camera's field of view and range from ``pose`` (the range
+    first: a landmark out of range needs no bearing)."""
+    r, _, _, _, _ = range_and_jacobian(pose, mu)
+    return rules.min_range <= r <= rules.max_range and abs(expected_bearing(pose, mu)) <= rules.fov
 
 
 @njit(cache=True, _nrt=False)
