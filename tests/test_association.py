@@ -752,3 +752,33 @@ def test_the_range_pre_gate_never_rules_out_a_pair_the_gate_keeps():
     far = np.array([np.hypot(*mu - pose[:2]) + 3.0, 0.0])
     small = np.eye(2) * 0.01
     assert outside_range_gate(pose, far, np.diag([0.07**2, 0.02**2]), mu, small, np.zeros((3, 3)), 0.0, rules)
+
+
+def test_the_bearing_pre_gate_never_rules_out_a_pair_the_gate_keeps():
+    """outside_bearing_gate (a bound on d^2 from the bearing alone) against association_loglik's d^2 on random
+    poses, landmarks, covariances, clouds and times unseen: every pair it rules out is beyond the gate, and it rules
+    out many (a landmark 1 rad off the sighting's bearing among them)."""
+    from fastslam_edu.landmark.association_likelihood import outside_bearing_gate
+
+    rng = np.random.default_rng(12)
+    rules = AssociationParams().rules()
+    ruled_out = 0
+    for _ in range(3000):
+        pose = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)])
+        mu = pose[:2] + rng.uniform(-6, 6, 2)
+        A = rng.normal(0, 0.3, (2, 2))
+        sigma = A @ A.T + 1e-4 * np.eye(2)
+        B = rng.normal(0, 0.05, (3, 3))
+        cloud = B @ B.T
+        z = np.array([rng.uniform(0.3, 8.0), rng.uniform(-1.0, 1.0)])
+        R = np.diag([rng.uniform(0.02, 0.3) ** 2, rng.uniform(0.01, 0.05) ** 2])
+        unseen = rng.uniform(0, 30)
+        direction = (math.cos(z[1] + pose[2]), math.sin(z[1] + pose[2]))
+        _, d2 = association_loglik(pose, z, R, mu, sigma, cloud, unseen, rules)
+        if outside_bearing_gate(pose, direction, R, mu, sigma, cloud, unseen, rules):
+            ruled_out += 1
+            assert d2 > rules.new_chi2
+    assert ruled_out > 500
+    pose, mu = np.zeros(3), np.array([3.0, 0.0])
+    assert outside_bearing_gate(pose, (math.cos(1.0), math.sin(1.0)), np.diag([0.07**2, 0.02**2]), mu,
+                                np.eye(2) * 0.01, np.zeros((3, 3)), 0.0, rules)

@@ -103,7 +103,7 @@ from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association_history import best_history, merge_copies
 from fastslam_edu.landmark.association_likelihood import (association_loglik, new_landmark_loglik,
-                                                          outside_range_gate)
+                                                          outside_bearing_gate, outside_range_gate)
 from fastslam_edu.landmark.association_params import (INDEPENDENT, JOINT, AssociationParams, MapParticles,
                                                       association_workspace, initial_particles)
 from fastslam_edu.landmark.fastslam_step import (motion_prediction_through_segment, move_through_segment,
@@ -184,9 +184,12 @@ def candidate_logliks(P, m, pose, instant, cloud, rules, ll):
     (Without reference counts: it only reads the particle set and writes ``ll``.)"""
     z, R, t = instant
     for i in range(z.shape[0]):
+        direction = (math.cos(z[i, 1] + pose[2]), math.sin(z[i, 1] + pose[2]))  # the sighting's, world frame
         for k in range(P.n[m]):
-            if outside_range_gate(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k], rules):
-                continue  # beyond the gate on its range alone: no candidate, at a fraction of the cost
+            unseen = t - P.last_t[m, k]
+            if outside_range_gate(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, unseen, rules) \
+                    or outside_bearing_gate(pose, direction, R[i], P.mu[m, k], P.sigma[m, k], cloud, unseen, rules):
+                continue  # beyond the gate on its range or its bearing alone: no candidate, at a fraction of the cost
             lik, d2 = association_loglik(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k],
                                          rules)
             if d2 <= rules.new_chi2:

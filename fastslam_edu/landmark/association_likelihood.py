@@ -110,6 +110,36 @@ RANGE_GATE_MARGIN = 1.0 + 1e-6
 
 
 @njit(cache=True, _nrt=False)
+def outside_bearing_gate(pose, direction, R, mu, sigma, cloud, unseen_s, rules):
+    """True when a sighting seen along ``direction`` = :math:`(\\cos\\alpha, \\sin\\alpha)`, :math:`\\alpha =
+    \\phi + \\theta` its bearing in the world frame, cannot fall within the gate :math:`d_0^2` of the landmark at
+    ``mu`` (2,), ``sigma`` (2, 2), whatever its range: the bearing's twin of :func:`outside_range_gate`, without
+    the arctangent of :math:`\\hat\\phi`.
+
+    :math:`d^2 \\ge \\nu_\\phi^2 / Q_{\\phi\\phi}`. The bearing row of :math:`H` has norm :math:`1/\\hat r`, so
+    :math:`(H\\Sigma H^\\top)_{\\phi\\phi} \\le \\operatorname{tr}\\Sigma/\\hat r^2`; that of :math:`H_x` is
+    :math:`(w, -1)` with :math:`|w| = 1/\\hat r`, and a variance of a sum is at most the square of the sum of the
+    standard deviations: :math:`(H_x P H_x^\\top)_{\\phi\\phi} \\le (\\sqrt{P_{xx} + P_{yy}}/\\hat r +
+    \\sqrt{P_{\\theta\\theta}})^2` (``cloud`` plus the drift). With :math:`B` the sum of the bounds and
+    :math:`R_{\\phi\\phi}`, the pair is outside when :math:`|\\nu_\\phi| > \\nu_{\\max} = \\sqrt{d_0^2 B}`. The unit
+    vectors to the landmark and along the sighting give :math:`\\cos\\nu_\\phi` (their dot product) and
+    :math:`|\\sin\\nu_\\phi|` (their cross product); :math:`|\\nu_\\phi| \\ge |\\sin\\nu_\\phi|`, and
+    :math:`|\\nu_\\phi| > \\pi/2` when :math:`\\cos\\nu_\\phi < 0`: either shows :math:`|\\nu_\\phi| > \\nu_{\\max}`
+    (margin :data:`RANGE_GATE_MARGIN`)."""
+    dx, dy = mu[0] - pose[0], mu[1] - pose[1]
+    r = math.sqrt(dx * dx + dy * dy)
+    if r == 0.0:
+        return False
+    v_xy, v_theta = drift_variances(unseen_s, rules)
+    pose_part = math.sqrt(cloud[0, 0] + cloud[1, 1] + 2.0 * v_xy) / r + math.sqrt(cloud[2, 2] + v_theta)
+    bound = (sigma[0, 0] + sigma[1, 1]) / (r * r) + R[1, 1] + pose_part * pose_part
+    nu_max = math.sqrt(RANGE_GATE_MARGIN * rules.new_chi2 * bound)
+    cos_nu = (dx * direction[0] + dy * direction[1]) / r
+    sin_nu = abs(dy * direction[0] - dx * direction[1]) / r
+    return sin_nu > nu_max or (cos_nu < 0.0 and nu_max < 0.5 * math.pi)
+
+
+@njit(cache=True, _nrt=False)
 def association_loglik(pose, z, R, mu, sigma, cloud, unseen_s, rules):
     """What the association decides by, for one landmark: ``(loglik, d2)`` of the sighting with
     :math:`Q + H_x P H_x^\\top`, the pose uncertainty added to the innovation covariance.
@@ -142,5 +172,5 @@ def best_landmark(P, m, z, R, taken, cloud, t, rules):
     return best, best_ll, best_d2
 
 
-__all__ = ["new_landmark_loglik", "pose_jacobian", "pose_term", "drift_variances", "drift_covariance",
+__all__ = ["new_landmark_loglik", "pose_jacobian", "pose_term", "drift_variances", "drift_covariance", "outside_bearing_gate",
            "innovation_with_pose", "outside_range_gate", "RANGE_GATE_MARGIN", "association_loglik", "best_landmark"]
