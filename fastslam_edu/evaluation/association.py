@@ -34,8 +34,8 @@ from scipy.optimize import linear_sum_assignment
 from fastslam_edu.core.measurement import innovation, range_bearing
 from fastslam_edu.evaluation import registration
 from fastslam_edu.core.se2 import align_se2, apply_se2
-from fastslam_edu.landmark.association import choose_landmarks
-from fastslam_edu.landmark.association_params import AssociationParams, initial_particles
+from fastslam_edu.landmark.association import choose_landmarks_kernel
+from fastslam_edu.landmark.association_params import AssociationParams, association_workspace, initial_particles
 from fastslam_edu.landmark.fastslam import FilterRun
 from fastslam_edu.landmark.hooks import Hook
 from fastslam_edu.landmark.particle_set import ParticleSet
@@ -223,10 +223,11 @@ def particles_right(P, z, R, t, truth, w, rules):
     ``rules.pose_scale`` times the particles' (:func:`~fastslam_edu.landmark.fastslam_step.pose_covariance`)."""
     right = np.zeros(z.shape[0])
     cloud = pose_covariance(P.poses, w) * rules.pose_scale
+    work = association_workspace(z.shape[0], P.mu.shape[1])
     for m in range(P.poses.shape[0]):
-        slot, _ = choose_landmarks(P, m, P.poses[m], z, R, cloud, t, rules)
+        choose_landmarks_kernel(P, m, P.poses[m], (z, R, t), cloud, rules, work)
         for i in range(z.shape[0]):
-            if slot[i] == truth[i]:
+            if work.slot[i] == truth[i]:
                 right[i] += w[m]
     return right
 
