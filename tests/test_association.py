@@ -725,6 +725,19 @@ def test_resampling_the_maps_in_place_equals_fancy_indexing():
             assert all(idx[p] == p or p not in order[:i] for i, m in enumerate(order) for p in [idx[m]])
 
 
+def random_pair(rng, cloud_std):
+    """A random pose, landmark (mean, covariance), particle-set covariance (entries of std ``cloud_std``), sighting,
+    R and time unseen, as the pre-gate tests draw them: ``(pose, mu, sigma, cloud, z, R, unseen)``."""
+    pose = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)])
+    mu = pose[:2] + rng.uniform(-6, 6, 2)
+    A = rng.normal(0, 0.3, (2, 2))
+    sigma = A @ A.T + 1e-4 * np.eye(2)
+    B = rng.normal(0, cloud_std, (3, 3))
+    z = np.array([rng.uniform(0.3, 8.0), rng.uniform(-1.0, 1.0)])
+    R = np.diag([rng.uniform(0.02, 0.3) ** 2, rng.uniform(0.01, 0.05) ** 2])
+    return pose, mu, sigma, B @ B.T, z, R, rng.uniform(0, 30)
+
+
 def test_the_range_pre_gate_never_rules_out_a_pair_the_gate_keeps():
     """outside_range_gate (a bound on d^2 from the range alone) against association_loglik's d^2 on random poses,
     landmarks, covariances, clouds and times unseen: every pair it rules out is beyond the gate; and it does rule
@@ -735,15 +748,7 @@ def test_the_range_pre_gate_never_rules_out_a_pair_the_gate_keeps():
     rules = AssociationParams().rules()
     ruled_out = 0
     for _ in range(3000):
-        pose = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)])
-        mu = pose[:2] + rng.uniform(-6, 6, 2)
-        A = rng.normal(0, 0.3, (2, 2))
-        sigma = A @ A.T + 1e-4 * np.eye(2)
-        B = rng.normal(0, 0.1, (3, 3))
-        cloud = B @ B.T
-        z = np.array([rng.uniform(0.3, 8.0), rng.uniform(-1.0, 1.0)])
-        R = np.diag([rng.uniform(0.02, 0.3) ** 2, rng.uniform(0.01, 0.05) ** 2])
-        unseen = rng.uniform(0, 30)
+        pose, mu, sigma, cloud, z, R, unseen = random_pair(rng, cloud_std=0.1)
         _, d2 = association_loglik(pose, z, R, mu, sigma, cloud, unseen, rules)
         if outside_range_gate(pose, z, R, mu, sigma, cloud, unseen, rules):
             ruled_out += 1
@@ -764,15 +769,7 @@ def test_the_bearing_pre_gate_never_rules_out_a_pair_the_gate_keeps():
     rules = AssociationParams().rules()
     ruled_out = 0
     for _ in range(3000):
-        pose = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)])
-        mu = pose[:2] + rng.uniform(-6, 6, 2)
-        A = rng.normal(0, 0.3, (2, 2))
-        sigma = A @ A.T + 1e-4 * np.eye(2)
-        B = rng.normal(0, 0.05, (3, 3))
-        cloud = B @ B.T
-        z = np.array([rng.uniform(0.3, 8.0), rng.uniform(-1.0, 1.0)])
-        R = np.diag([rng.uniform(0.02, 0.3) ** 2, rng.uniform(0.01, 0.05) ** 2])
-        unseen = rng.uniform(0, 30)
+        pose, mu, sigma, cloud, z, R, unseen = random_pair(rng, cloud_std=0.05)
         direction = (math.cos(z[1] + pose[2]), math.sin(z[1] + pose[2]))
         _, d2 = association_loglik(pose, z, R, mu, sigma, cloud, unseen, rules)
         if outside_bearing_gate(pose, direction, R, mu, sigma, cloud, unseen, rules):
