@@ -738,11 +738,19 @@ def random_pair(rng, cloud_std):
     return pose, mu, sigma, B @ B.T, z, R, rng.uniform(0, 30)
 
 
+def sighting_direction(pose, z):
+    """:math:`(\\cos\\alpha, \\sin\\alpha)`, :math:`\\alpha = \\phi + \\theta`: the world direction of sighting ``z``
+    from ``pose``, as candidate_logliks gives it to outside_gate."""
+    return math.cos(z[1] + pose[2]), math.sin(z[1] + pose[2])
+
+
 def test_the_range_pre_gate_never_rules_out_a_pair_the_gate_keeps():
-    """outside_range_gate (a bound on d^2 from the range alone) against association_loglik's d^2 on random poses,
-    landmarks, covariances, clouds and times unseen: every pair it rules out is beyond the gate; and it does rule
-    out a landmark 3 m further than the sighting's range (it is not vacuous)."""
-    from fastslam_edu.landmark.association_likelihood import outside_range_gate
+    """outside_gate's range bound (a bound on d^2 from the range alone) against association_loglik's d^2 on random
+    poses, landmarks, covariances, clouds and times unseen. Given the direction to the landmark, where the bearing
+    bound is silent, outside_gate is the range bound alone: every pair it rules out is beyond the gate, and it rules
+    out many (a landmark 3 m further than the sighting's range among them). With the sighting's own direction, as
+    candidate_logliks calls it, every pair it rules out is beyond the gate too."""
+    from fastslam_edu.landmark.association_likelihood import outside_gate
 
     rng = np.random.default_rng(11)
     rules = AssociationParams().rules()
@@ -750,32 +758,93 @@ def test_the_range_pre_gate_never_rules_out_a_pair_the_gate_keeps():
     for _ in range(3000):
         pose, mu, sigma, cloud, z, R, unseen = random_pair(rng, cloud_std=0.1)
         _, d2 = association_loglik(pose, z, R, mu, sigma, cloud, unseen, rules)
-        if outside_range_gate(pose, z, R, mu, sigma, cloud, unseen, rules):
+        toward = (mu - pose[:2]) / np.hypot(*(mu - pose[:2]))  # no bearing innovation: the range bound decides
+        if outside_gate(pose, z, toward, R, mu, sigma, cloud, unseen, rules):
             ruled_out += 1
             assert d2 > rules.new_chi2
+        if outside_gate(pose, z, sighting_direction(pose, z), R, mu, sigma, cloud, unseen, rules):
+            assert d2 > rules.new_chi2
     assert ruled_out > 1000
-    far = np.array([np.hypot(*mu - pose[:2]) + 3.0, 0.0])
-    small = np.eye(2) * 0.01
-    assert outside_range_gate(pose, far, np.diag([0.07**2, 0.02**2]), mu, small, np.zeros((3, 3)), 0.0, rules)
+    bearing = math.atan2(*(mu - pose[:2])[::-1]) - pose[2]
+    far = np.array([np.hypot(*mu - pose[:2]) + 3.0, bearing])
+    small, R = np.eye(2) * 0.01, np.diag([0.07**2, 0.02**2])
+    assert outside_gate(pose, far, sighting_direction(pose, far), R, mu, small, np.zeros((3, 3)), 0.0, rules)
+    near = np.array([far[0] - 3.0, bearing])
+    assert not outside_gate(pose, near, sighting_direction(pose, near), R, mu, small, np.zeros((3, 3)), 0.0, rules)
 
 
 def test_the_bearing_pre_gate_never_rules_out_a_pair_the_gate_keeps():
-    """outside_bearing_gate (a bound on d^2 from the bearing alone) against association_loglik's d^2 on random
-    poses, landmarks, covariances, clouds and times unseen: every pair it rules out is beyond the gate, and it rules
-    out many (a landmark 1 rad off the sighting's bearing among them)."""
-    from fastslam_edu.landmark.association_likelihood import outside_bearing_gate
+    """outside_gate's bearing bound (a bound on d^2 from the bearing alone) against association_loglik's d^2 on
+    random poses, landmarks, covariances, clouds and times unseen. Given a sighting at the landmark's own range,
+    where the range bound is silent, outside_gate is the bearing bound alone: every pair it rules out is beyond the
+    gate, and it rules out many (a landmark 1 rad off the sighting's bearing among them). With the sighting's own
+    range, as candidate_logliks calls it, every pair it rules out is beyond the gate too."""
+    from fastslam_edu.landmark.association_likelihood import outside_gate
 
     rng = np.random.default_rng(12)
     rules = AssociationParams().rules()
     ruled_out = 0
     for _ in range(3000):
         pose, mu, sigma, cloud, z, R, unseen = random_pair(rng, cloud_std=0.05)
-        direction = (math.cos(z[1] + pose[2]), math.sin(z[1] + pose[2]))
+        direction = sighting_direction(pose, z)
         _, d2 = association_loglik(pose, z, R, mu, sigma, cloud, unseen, rules)
-        if outside_bearing_gate(pose, direction, R, mu, sigma, cloud, unseen, rules):
+        at_range = np.array([math.sqrt(np.sum((mu - pose[:2]) ** 2)), z[1]])  # no range innovation
+        if outside_gate(pose, at_range, direction, R, mu, sigma, cloud, unseen, rules):
             ruled_out += 1
             assert d2 > rules.new_chi2
+        if outside_gate(pose, z, direction, R, mu, sigma, cloud, unseen, rules):
+            assert d2 > rules.new_chi2
     assert ruled_out > 500
-    pose, mu = np.zeros(3), np.array([3.0, 0.0])
-    assert outside_bearing_gate(pose, (math.cos(1.0), math.sin(1.0)), np.diag([0.07**2, 0.02**2]), mu,
-                                np.eye(2) * 0.01, np.zeros((3, 3)), 0.0, rules)
+    pose, mu, R = np.zeros(3), np.array([3.0, 0.0]), np.diag([0.07**2, 0.02**2])
+    off, on = np.array([3.0, 1.0]), np.array([3.0, 0.0])
+    assert outside_gate(pose, off, sighting_direction(pose, off), R, mu, np.eye(2) * 0.01, np.zeros((3, 3)), 0.0,
+                        rules)
+    assert not outside_gate(pose, on, sighting_direction(pose, on), R, mu, np.eye(2) * 0.01, np.zeros((3, 3)), 0.0,
+                            rules)
+
+
+def in_view_by_arctangent(pose, mu, rules):
+    """in_view as written with the bearing's arctangent: range in [min_range, max_range] and |wrap(atan2(δy, δx) - θ)|
+    <= fov (the reference of the test below)."""
+    from fastslam_edu.core.ekf import expected_bearing
+
+    r = math.sqrt((mu[0] - pose[0]) ** 2 + (mu[1] - pose[1]) ** 2)
+    return rules.min_range <= r <= rules.max_range and abs(expected_bearing(pose, mu)) <= rules.fov
+
+
+def test_in_view_without_the_arctangent_decides_as_the_bearing():
+    """in_view (a dot product against cos(fov)) against the arctangent of the bearing, for half fields of view below,
+    at and beyond pi/2 and up to pi: the same answer on 4000 random poses (headings over several turns) and
+    landmarks each, except within 1e-9 rad of the field's edge; the same answer on landmarks 1e-6 rad inside and
+    outside the edge, at r = 0 (with min_range 0: the answer of atan2(0, 0) = 0) and for a field wider than pi."""
+    from fastslam_edu.landmark.landmark_existence import in_view
+
+    rng = np.random.default_rng(13)
+    inside_total = outside_total = 0
+    for fov in (0.45, 1.0, math.pi / 2, 2.0, 3.0, math.pi):
+        rules = AssociationParams(fov=fov, min_range=0.5, max_range=5.0).rules()
+        for _ in range(4000):
+            pose = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-3 * np.pi, 3 * np.pi)])
+            mu = pose[:2] + rng.uniform(-6, 6, 2)
+            expected = in_view_by_arctangent(pose, mu, rules)
+            edge = abs(abs(math.atan2(*(mu - pose[:2])[::-1]) - pose[2] + np.pi) % (2 * np.pi) - np.pi) - fov
+            assert in_view(pose, mu, rules) == expected or abs(edge) < 1e-9
+            in_range = rules.min_range <= np.hypot(*(mu - pose[:2])) <= rules.max_range
+            inside_total += expected
+            outside_total += in_range and not expected
+        for side in (-1e-6, 1e-6):  # just inside, just outside the edge, either side of the heading
+            for sign in (-1.0, 1.0):
+                pose = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)])
+                angle = pose[2] + sign * (fov + side)
+                mu = pose[:2] + rng.uniform(0.6, 4.9) * np.array([math.cos(angle), math.sin(angle)])
+                assert in_view(pose, mu, rules) == in_view_by_arctangent(pose, mu, rules) == (side < 0 or fov >= np.pi)
+        at_robot = AssociationParams(fov=fov, min_range=0.0, max_range=5.0).rules()
+        for theta in rng.uniform(-np.pi, np.pi, 50):
+            pose = np.array([1.0, 2.0, theta])
+            assert in_view(pose, pose[:2].copy(), at_robot) == in_view_by_arctangent(pose, pose[:2].copy(), at_robot)
+    wider = AssociationParams().rules()._replace(fov=4.0)  # (not an AssociationParams: beyond pi, every bearing)
+    for _ in range(200):
+        pose = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)])
+        mu = pose[:2] + rng.uniform(-4, 4, 2)
+        assert in_view(pose, mu, wider) == in_view_by_arctangent(pose, mu, wider)
+    assert inside_total > 5000 and outside_total > 3000  # both answers, many times

@@ -102,8 +102,7 @@ from fastslam_edu.core.resampling import in_increasing_order
 from fastslam_edu.core.timing import RunTimer
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association_history import best_history, merge_copies
-from fastslam_edu.landmark.association_likelihood import (association_loglik, new_landmark_loglik,
-                                                          outside_bearing_gate, outside_range_gate)
+from fastslam_edu.landmark.association_likelihood import association_loglik, new_landmark_loglik, outside_gate
 from fastslam_edu.landmark.association_params import (INDEPENDENT, JOINT, AssociationParams, MapParticles,
                                                       association_workspace, initial_particles)
 from fastslam_edu.landmark.fastslam_step import (motion_prediction_through_segment, move_through_segment,
@@ -187,8 +186,7 @@ def candidate_logliks(P, m, pose, instant, cloud, rules, ll):
         direction = (math.cos(z[i, 1] + pose[2]), math.sin(z[i, 1] + pose[2]))  # the sighting's, world frame
         for k in range(P.n[m]):
             unseen = t - P.last_t[m, k]
-            if outside_range_gate(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, unseen, rules) \
-                    or outside_bearing_gate(pose, direction, R[i], P.mu[m, k], P.sigma[m, k], cloud, unseen, rules):
+            if outside_gate(pose, z[i], direction, R[i], P.mu[m, k], P.sigma[m, k], cloud, unseen, rules):
                 continue  # beyond the gate on its range or its bearing alone: no candidate, at a fraction of the cost
             lik, d2 = association_loglik(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k],
                                          rules)

@@ -83,60 +83,69 @@ def innovation_with_pose(pose, z, R, mu, sigma, P, rules, v_xy=0.0, v_theta=0.0)
     return nu0, nu1, q00 + a - (1.0 - rules.range_scale ** 2) * R[0, 0], q01 + b, q11 + d
 
 
-@njit(cache=True, _nrt=False)
-def outside_range_gate(pose, z, R, mu, sigma, cloud, unseen_s, rules):
-    """True when sighting ``z`` cannot fall within the gate :math:`d_0^2` (``rules.new_chi2``) of the landmark at
-    ``mu`` (2,), ``sigma`` (2, 2), whatever its bearing: a test on the range alone, a few multiplications instead of
-    :func:`association_loglik`'s innovation.
+#: The factor by which :func:`outside_gate` widens its bounds, so that round-off never rules out a pair the gate
+#: itself would keep.
+RANGE_GATE_MARGIN = 1.0 + 1e-6
+
+
+@njit(cache=True, inline="always")
+def outside_range_bound(nu_r, R, sigma, cloud, v_xy, rules):
+    """:func:`outside_gate`'s test on the range alone, whatever the bearing: True when the range innovation
+    ``nu_r`` = :math:`\\nu_r = r - \\hat r` [m] is too large for the landmark of covariance ``sigma`` (2, 2).
 
     For any 2×2 covariance :math:`Q`, :math:`\\nu^\\top Q^{-1} \\nu \\ge \\nu_r^2 / Q_{rr}` (the squared distance
     of one component alone is never larger). The range row of :math:`H` is a unit vector, so
     :math:`(H\\Sigma H^\\top)_{rr} \\le \\operatorname{tr}\\Sigma`, and that of :math:`H_x` has a unit :math:`(x, y)`
-    part and no :math:`\\theta` part, so :math:`(H_x P H_x^\\top)_{rr} \\le P_{xx} + P_{yy}` (``cloud`` plus the
-    drift of :func:`drift_covariance`). Hence :math:`d^2 > d_0^2` whenever
+    part and no :math:`\\theta` part, so :math:`(H_x P H_x^\\top)_{rr} \\le P_{xx} + P_{yy}` (``cloud`` (3, 3) plus
+    the drift ``v_xy`` of :func:`drift_covariance`). Hence :math:`d^2 > d_0^2` whenever
     :math:`\\nu_r^2 > d_0^2\\,(\\operatorname{tr}\\Sigma + s^2 R_{rr} + P_{xx} + P_{yy})`, with a margin of
-    :data:`RANGE_GATE_MARGIN` for round-off: the pairs it rules out are pairs the gate rules out."""
-    dx, dy = mu[0] - pose[0], mu[1] - pose[1]
-    nu_r = z[0] - math.sqrt(dx * dx + dy * dy)
-    v_xy, _ = drift_variances(unseen_s, rules)
+    :data:`RANGE_GATE_MARGIN` for round-off."""
     bound = (sigma[0, 0] + sigma[1, 1] + rules.range_scale ** 2 * R[0, 0] + cloud[0, 0] + cloud[1, 1]
              + 2.0 * v_xy)
     return nu_r * nu_r > RANGE_GATE_MARGIN * rules.new_chi2 * bound
 
 
-#: The factor by which :func:`outside_range_gate` widens its bound, so that round-off never rules out a pair
-#: the gate itself would keep.
-RANGE_GATE_MARGIN = 1.0 + 1e-6
-
-
-@njit(cache=True, _nrt=False)
-def outside_bearing_gate(pose, direction, R, mu, sigma, cloud, unseen_s, rules):
-    """True when a sighting seen along ``direction`` = :math:`(\\cos\\alpha, \\sin\\alpha)`, :math:`\\alpha =
-    \\phi + \\theta` its bearing in the world frame, cannot fall within the gate :math:`d_0^2` of the landmark at
-    ``mu`` (2,), ``sigma`` (2, 2), whatever its range: the bearing's twin of :func:`outside_range_gate`, without
-    the arctangent of :math:`\\hat\\phi`.
+@njit(cache=True, inline="always")
+def outside_bearing_bound(dx, dy, r, direction, R, sigma, cloud, v_xy, v_theta, rules):
+    """:func:`outside_gate`'s test on the bearing alone, whatever the range, without the arctangent of
+    :math:`\\hat\\phi`: True when the sighting's ``direction`` (2,) is too far from that of the landmark,
+    ``(dx, dy)`` = :math:`\\delta` [m] away at range ``r`` = :math:`\\hat r` (False when :math:`\\hat r = 0`).
 
     :math:`d^2 \\ge \\nu_\\phi^2 / Q_{\\phi\\phi}`. The bearing row of :math:`H` has norm :math:`1/\\hat r`, so
     :math:`(H\\Sigma H^\\top)_{\\phi\\phi} \\le \\operatorname{tr}\\Sigma/\\hat r^2`; that of :math:`H_x` is
     :math:`(w, -1)` with :math:`|w| = 1/\\hat r`, and a variance of a sum is at most the square of the sum of the
     standard deviations: :math:`(H_x P H_x^\\top)_{\\phi\\phi} \\le (\\sqrt{P_{xx} + P_{yy}}/\\hat r +
-    \\sqrt{P_{\\theta\\theta}})^2` (``cloud`` plus the drift). With :math:`B` the sum of the bounds and
-    :math:`R_{\\phi\\phi}`, the pair is outside when :math:`|\\nu_\\phi| > \\nu_{\\max} = \\sqrt{d_0^2 B}`. The unit
-    vectors to the landmark and along the sighting give :math:`\\cos\\nu_\\phi` (their dot product) and
-    :math:`|\\sin\\nu_\\phi|` (their cross product); :math:`|\\nu_\\phi| \\ge |\\sin\\nu_\\phi|`, and
+    \\sqrt{P_{\\theta\\theta}})^2` (``cloud`` (3, 3) plus the drift ``v_xy``, ``v_theta``). With :math:`B` the sum
+    of the bounds and :math:`R_{\\phi\\phi}`, the pair is outside when :math:`|\\nu_\\phi| > \\nu_{\\max} =
+    \\sqrt{d_0^2 B}`. The unit vectors to the landmark and along the sighting give :math:`\\cos\\nu_\\phi` (their dot
+    product) and :math:`|\\sin\\nu_\\phi|` (their cross product); :math:`|\\nu_\\phi| \\ge |\\sin\\nu_\\phi|`, and
     :math:`|\\nu_\\phi| > \\pi/2` when :math:`\\cos\\nu_\\phi < 0`: either shows :math:`|\\nu_\\phi| > \\nu_{\\max}`
     (margin :data:`RANGE_GATE_MARGIN`)."""
-    dx, dy = mu[0] - pose[0], mu[1] - pose[1]
-    r = math.sqrt(dx * dx + dy * dy)
     if r == 0.0:
         return False
-    v_xy, v_theta = drift_variances(unseen_s, rules)
     pose_part = math.sqrt(cloud[0, 0] + cloud[1, 1] + 2.0 * v_xy) / r + math.sqrt(cloud[2, 2] + v_theta)
     bound = (sigma[0, 0] + sigma[1, 1]) / (r * r) + R[1, 1] + pose_part * pose_part
     nu_max = math.sqrt(RANGE_GATE_MARGIN * rules.new_chi2 * bound)
     cos_nu = (dx * direction[0] + dy * direction[1]) / r
     sin_nu = abs(dy * direction[0] - dx * direction[1]) / r
     return sin_nu > nu_max or (cos_nu < 0.0 and nu_max < 0.5 * math.pi)
+
+
+@njit(cache=True, _nrt=False)
+def outside_gate(pose, z, direction, R, mu, sigma, cloud, unseen_s, rules):
+    """True when sighting ``z`` (2,), seen along ``direction`` = :math:`(\\cos\\alpha, \\sin\\alpha)`,
+    :math:`\\alpha = \\phi + \\theta` its bearing in the world frame, cannot fall within the gate :math:`d_0^2`
+    (``rules.new_chi2``) of the landmark at ``mu`` (2,), ``sigma`` (2, 2): a test on its range alone
+    (:func:`outside_range_bound`), then on its bearing alone (:func:`outside_bearing_bound`), a few multiplications
+    instead of :func:`association_loglik`'s innovation. Both bounds share :math:`\\delta = \\mu - (x, y)`,
+    :math:`\\hat r = |\\delta|` [m] and the drift :math:`(v_{xy}, v_\\theta)` of :func:`drift_variances`, computed
+    once here. The pairs it rules out are pairs the gate rules out (margin :data:`RANGE_GATE_MARGIN` for round-off).
+    """
+    dx, dy = mu[0] - pose[0], mu[1] - pose[1]
+    r = math.sqrt(dx * dx + dy * dy)
+    v_xy, v_theta = drift_variances(unseen_s, rules)
+    return (outside_range_bound(z[0] - r, R, sigma, cloud, v_xy, rules)
+            or outside_bearing_bound(dx, dy, r, direction, R, sigma, cloud, v_xy, v_theta, rules))
 
 
 @njit(cache=True, _nrt=False)
@@ -156,21 +165,6 @@ def association_loglik(pose, z, R, mu, sigma, cloud, unseen_s, rules):
     return -0.5 * d2 - LOG_2PI - 0.5 * math.log(det_q), d2
 
 
-@njit(cache=True)
-def best_landmark(P, m, z, R, taken, cloud, t, rules):
-    """The most likely landmark of particle ``m`` for sighting ``z`` at time ``t``: ``(k, loglik, d2)``
-    (:func:`association_loglik`); ``(-1, -inf, inf)`` if it holds none. Landmarks with ``taken[k]`` set
-    (mutual exclusion) are skipped.
-    """
-    best, best_ll, best_d2 = -1, -math.inf, math.inf
-    for k in range(P.n[m]):
-        if taken[k]:
-            continue
-        ll, d2 = association_loglik(P.poses[m], z, R, P.mu[m, k], P.sigma[m, k], cloud, t - P.last_t[m, k], rules)
-        if ll > best_ll:
-            best, best_ll, best_d2 = k, ll, d2
-    return best, best_ll, best_d2
-
-
-__all__ = ["new_landmark_loglik", "pose_jacobian", "pose_term", "drift_variances", "drift_covariance", "outside_bearing_gate",
-           "innovation_with_pose", "outside_range_gate", "RANGE_GATE_MARGIN", "association_loglik", "best_landmark"]
+__all__ = ["new_landmark_loglik", "pose_jacobian", "pose_term", "drift_variances", "drift_covariance",
+           "innovation_with_pose", "RANGE_GATE_MARGIN", "outside_gate", "outside_range_bound", "outside_bearing_bound",
+           "association_loglik"]

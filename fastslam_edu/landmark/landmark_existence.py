@@ -10,7 +10,7 @@ import math
 import numpy as np
 from numba import njit
 
-from fastslam_edu.core.ekf import expected_bearing, initialise_landmark_kernel, range_and_jacobian
+from fastslam_edu.core.ekf import initialise_landmark_kernel
 
 
 @njit(cache=True, _nrt=False)
@@ -54,10 +54,29 @@ def remove_landmark(P, m, k):
 
 @njit(cache=True, _nrt=False)
 def in_view(pose, mu, rules):
-    """Whether a landmark at ``mu`` is inside the camera's field of view and range from ``pose`` (the range
-    first: a landmark out of range needs no bearing)."""
-    r, _, _, _, _ = range_and_jacobian(pose, mu)
-    return rules.min_range <= r <= rules.max_range and abs(expected_bearing(pose, mu)) <= rules.fov
+    """Whether a landmark at ``mu`` (2,) is inside the camera's range and field of view from ``pose`` (3,): its range
+    :math:`r = |\\delta|`, :math:`\\delta = \\mu - (x, y)` [m], within ``[rules.min_range, rules.max_range]`` and
+    its bearing :math:`\\phi = \\operatorname{atan2}(\\delta_y, \\delta_x) - \\theta` (wrapped) within
+    :math:`\\pm` ``rules.fov`` = :math:`\\phi_{\\max}` [rad] (the range first: a landmark out of range needs no
+    bearing).
+
+    The bearing without its arctangent: :math:`\\cos\\phi` is the dot product of the unit heading
+    :math:`(\\cos\\theta, \\sin\\theta)` and the unit vector :math:`\\delta / r` to the landmark, and
+    :math:`\\cos` decreases on :math:`[0, \\pi]`, so :math:`|\\phi| \\le \\phi_{\\max} \\iff
+    \\delta_x\\cos\\theta + \\delta_y\\sin\\theta \\ge r\\cos\\phi_{\\max}` for any
+    :math:`\\phi_{\\max} \\in [0, \\pi]`, beyond :math:`\\pi/2` too (:math:`\\cos\\phi_{\\max} < 0`: a landmark
+    behind the robot's sideways line may be in view); :math:`\\phi_{\\max} \\ge \\pi` lets every bearing in. At
+    :math:`r = 0` the direction is that of :math:`\\operatorname{atan2}(0, 0) = 0`, :math:`\\delta / r = (1, 0)`.
+    """
+    dx, dy = mu[0] - pose[0], mu[1] - pose[1]
+    r = math.sqrt(dx * dx + dy * dy)
+    if not rules.min_range <= r <= rules.max_range:
+        return False
+    if rules.fov >= math.pi:
+        return True
+    if r == 0.0:
+        dx, r = 1.0, 1.0  # atan2(0, 0) = 0: the direction of the x axis
+    return dx * math.cos(pose[2]) + dy * math.sin(pose[2]) >= r * math.cos(rules.fov)
 
 
 @njit(cache=True, _nrt=False)
