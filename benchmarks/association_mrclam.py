@@ -46,10 +46,12 @@ seconds (target <= 30 s per robot on the 2-core machine); the JSON gains ``smoot
 whose starts compete by their final penalised cost; its seconds include the K-1 extra filter runs.
 
 ``--deferred``, ``--split``: the filter with ``AssociationParams(deferred=True)`` (deferred commitment) and
-``split_tentative=True`` (a provisional landmark seen twice in one frame splits).
+``split_tentative=True`` (a provisional landmark seen twice in one frame splits). ``--gap-window K``:
+``gap_window_sightings=K`` (re-association after a gap: the first K sightings after a stretch without any decided
+together per particle, :mod:`fastslam_edu.landmark.gap_window`).
 
 Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs N | --scheduler ADDRESS] [--greedy] [--deferred]
-[--split] [--smoother]
+[--split] [--gap-window K] [--smoother]
 [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data; about 30 s on 2 cores for 3 seeds)
 """
@@ -173,21 +175,26 @@ def main(argv=None) -> int:
                          "landmark's position)")
     ap.add_argument("--split", action="store_true",
                     help="a provisional landmark two sightings of one frame fit splits (split_tentative=True)")
+    ap.add_argument("--gap-window", type=int, default=0, metavar="K",
+                    help="re-association after a gap: the first K sightings decided together "
+                         "(AssociationParams(gap_window_sightings=K); default 0: off)")
     ap.add_argument("--smoother", action="store_true",
                     help="also the smoother's association from each filter run (second table, JSON 'smoother')")
     ap.add_argument("--smoother-runs", type=int, default=1, metavar="K",
                     help="with --smoother: start the smoother from K filter runs (default 1)")
     ap.add_argument("--out", type=Path, default=None,
                     help="JSON file (default results/association_mrclam.json; association_mrclam_greedy.json, "
-                         "..._deferred, ..._split with those options)")
+                         "..._deferred, ..._split, ..._gapK with those options)")
     args = ap.parse_args(argv)
     if args.smoother_runs < 1:
         ap.error(f"--smoother-runs must be >= 1, got {args.smoother_runs}")
+    if args.gap_window < 0:
+        ap.error(f"--gap-window must be >= 0, got {args.gap_window}")
     robots = ROBOTS + EXTRA
     params = AssociationParams(association="greedy" if args.greedy else "joint", deferred=args.deferred,
-                               split_tentative=args.split)
+                               split_tentative=args.split, gap_window_sightings=args.gap_window)
     name = ("association_mrclam" + "_greedy" * args.greedy + "_deferred" * args.deferred + "_split" * args.split
-            + ".json")
+            + f"_gap{args.gap_window}" * (args.gap_window > 0) + ".json")
     args.out = args.out or Path(__file__).parent / "results" / name
     start = time.perf_counter()
     try:

@@ -88,7 +88,7 @@ def innovation_with_pose(pose, z, R, mu, sigma, P, rules, v_xy=0.0, v_theta=0.0)
 RANGE_GATE_MARGIN = 1.0 + 1e-6
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def outside_range_bound(nu_r, R, sigma, cloud, v_xy, rules):
     """:func:`outside_gate`'s test on the range alone, whatever the bearing: True when the range innovation
     ``nu_r`` = :math:`\\nu_r = r - \\hat r` [m] is too large for the landmark of covariance ``sigma`` (2, 2).
@@ -105,7 +105,7 @@ def outside_range_bound(nu_r, R, sigma, cloud, v_xy, rules):
     return nu_r * nu_r > RANGE_GATE_MARGIN * rules.new_chi2 * bound
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def outside_bearing_bound(dx, dy, r, direction, R, sigma, cloud, v_xy, v_theta, rules):
     """:func:`outside_gate`'s test on the bearing alone, whatever the range, without the arctangent of
     :math:`\\hat\\phi`: True when the sighting's ``direction`` (2,) is too far from that of the landmark,

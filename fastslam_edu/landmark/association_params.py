@@ -127,6 +127,13 @@ class AssociationParams(Params):
     split_tentative : bool
         A provisional landmark that two sightings of one camera frame both fit splits in two (default False): it is
         re-initialised from the sighting it was given, the other starts a landmark (:func:`splitting_sightings`).
+    gap_window_sightings : int
+        Re-association after a gap (:mod:`fastslam_edu.landmark.gap_window`; 0, the default: off): the sightings
+        after a stretch of more than ``drift_cap_s`` without any are held until there are this many, or
+        ``gap_window_s`` seconds have passed, and each particle decides them together, with the gap's pose error.
+        FastSLAM 1.0 only.
+    gap_window_s : float
+        The longest a window of :attr:`gap_window_sightings` stays open [s].
     """
 
     filter: FastSLAMParams = field(default_factory=FastSLAMParams)
@@ -153,6 +160,8 @@ class AssociationParams(Params):
     deferred: bool = False
     separation_m: float = 0.2
     split_tentative: bool = False
+    gap_window_sightings: int = 0
+    gap_window_s: float = 10.0
 
     def __post_init__(self):
         if not isinstance(self.filter, FastSLAMParams):
@@ -172,6 +181,11 @@ class AssociationParams(Params):
         if not 0.0 < self.clutter_probability < self.detection_probability < 1.0:
             raise ValueError(f"need 0 < clutter_probability < detection_probability < 1, got "
                              f"{self.clutter_probability!r}, {self.detection_probability!r}")
+        if int(self.gap_window_sightings) < 0 or not self.gap_window_s > 0:
+            raise ValueError(f"need gap_window_sightings >= 0 (0: off) and gap_window_s > 0, got "
+                             f"{self.gap_window_sightings!r}, {self.gap_window_s!r}")
+        if self.gap_window_sightings and self.filter.proposal == "fastslam2":
+            raise ValueError("gap_window_sightings: FastSLAM 1.0 only (filter.proposal 'fastslam2' moves the pose itself)")
         if not (math.isfinite(self.separation_m) and self.separation_m > 0):
             raise ValueError(f"separation_m must be > 0, got {self.separation_m!r}")
         if not (0 < self.fov <= math.pi and 0 <= self.min_range < self.max_range):
@@ -201,7 +215,8 @@ class AssociationParams(Params):
                      new_max_range=float(self.new_max_range),
                      log_odds_cap=float(self.log_odds_cap_sightings) * log_odds_seen,
                      inherit_radius=float(self.inherit_radius), confirm_range=float(self.confirm_range),
-                     split=bool(self.split_tentative))
+                     split=bool(self.split_tentative), window_sightings=int(self.gap_window_sightings),
+                     window_s=float(self.gap_window_s))
 
 
 class MapParticles(NamedTuple):
@@ -239,7 +254,7 @@ class AssociationWorkspace(NamedTuple):
     the slot each sighting goes to (-1: new); chosen (n,): the log-likelihood it was decided by; taken (N,): the
     landmarks a sighting of the instant went to; split (n,): the sightings whose landmark splits
     (:func:`~fastslam_edu.landmark.association.splitting_sightings`); info (n, N, ``N_PAIR_SLOTS``), p0 (n,),
-    choice (n,), used (N,), total (``N_PAIR_SLOTS``,), excess and common (3, 3): joint compatibility's
+    choice (n,), used (N,), total (``N_PAIR_SLOTS``,), excess and common (3, 3), group (n,): joint compatibility's
     (:mod:`fastslam_edu.landmark.joint_compatibility`).
     """
 
@@ -255,6 +270,7 @@ class AssociationWorkspace(NamedTuple):
     total: np.ndarray
     excess: np.ndarray
     common: np.ndarray
+    group: np.ndarray
 
 
 @njit(cache=True)
@@ -264,8 +280,8 @@ def association_workspace(n, N):
     return AssociationWorkspace(np.full((n, N), -math.inf), np.full(n, -1, dtype=np.int64), np.full(n, -math.inf),
                                 np.zeros(N, dtype=np.bool_), np.zeros(n, dtype=np.bool_),
                                 np.zeros((n, N, N_PAIR_SLOTS)), np.zeros(n), np.full(n, -1, dtype=np.int64),
-                                np.zeros(N, dtype=np.bool_), np.zeros(N_PAIR_SLOTS), np.zeros((3, 3)),
-                                np.zeros((3, 3)))
+                                np.full(N, -1, dtype=np.int64), np.zeros(N_PAIR_SLOTS), np.zeros((3, 3)),
+                                np.zeros((3, 3)), np.zeros(n, dtype=np.int64))
 
 
 def initial_particles(n_particles: int, max_landmarks: int, x0) -> MapParticles:
@@ -305,6 +321,8 @@ class Rules(NamedTuple):
     inherit_radius: float
     confirm_range: float
     split: bool
+    window_sightings: int
+    window_s: float
 
 
 __all__ = ["ASSOCIATION_RULES", "INDEPENDENT", "GREEDY", "JOINT", "confirmation_range", "AssociationParams",

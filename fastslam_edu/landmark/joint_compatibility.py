@@ -64,7 +64,7 @@ def joint_slots(P, m, pose, cloud, instant, rules, work):
         p0[i] = new_landmark_loglik(instant[1][i], rules.new_chi2)
     drift_covariance(cloud, unseen, rules, work.common)
     best_joint_hypothesis(work.info[:n, :K], ll, p0, work.common, work.slot[:n],
-                          (work.choice[:n], work.used[:K], work.total))
+                          (work.choice[:n], work.used[:K], work.total, work.group[:n]))
     return True
 
 
@@ -93,18 +93,27 @@ def pair_information(P, m, pose, instant, unseen, rules, work):
             excess[0, 0] = excess[1, 1] = own_xy - common_xy
             excess[2, 2] = own_theta - common_theta
             nu0, nu1, d00, d01, d11 = innovation_with_pose(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], excess, rules)
-            det = d00 * d11 - d01 * d01
-            i00, i01, i11 = d11 / det, -d01 / det, d00 / det  # D⁻¹
             j0, j1, j2, k0, k1, k2 = pose_jacobian(pose, P.mu[m, k, 0], P.mu[m, k, 1])
-            hr, hb = (j0, j1, j2), (k0, k1, k2)  # the rows of H_x: range, bearing
-            v0, v1 = i00 * nu0 + i01 * nu1, i01 * nu0 + i11 * nu1  # D⁻¹ν
-            info[i, k, PAIR_QUAD] = nu0 * v0 + nu1 * v1
-            for u in range(3):
-                info[i, k, PAIR_B + u] = hr[u] * v0 + hb[u] * v1
-                for v in range(3):
-                    info[i, k, PAIR_G + 3 * u + v] = (hr[u] * (i00 * hr[v] + i01 * hb[v])
-                                                 + hb[u] * (i01 * hr[v] + i11 * hb[v]))
-            info[i, k, PAIR_LOG_DET] = math.log(det)
+            write_pair_row((nu0, nu1), (d00, d01, d11), (j0, j1, j2), (k0, k1, k2), info[i, k])
+
+
+@njit(cache=True, _nrt=False)
+def write_pair_row(nu, D, hr, hb, row):
+    """One row of :func:`pair_information` (:data:`N_PAIR_SLOTS`,), written into ``row``: from the innovation
+    ``nu`` :math:`= (\\nu_r, \\nu_\\phi)`, its covariance ``D`` :math:`= (D_{00}, D_{01}, D_{11})` and the rows of
+    :math:`H_x` (``hr``: range, ``hb``: bearing; 3 numbers each): :math:`\\nu^\\top D^{-1}\\nu`,
+    :math:`H_x^\\top D^{-1}\\nu`, :math:`H_x^\\top D^{-1} H_x` and :math:`\\log\\det D`."""
+    nu0, nu1 = nu
+    d00, d01, d11 = D
+    det = d00 * d11 - d01 * d01
+    i00, i01, i11 = d11 / det, -d01 / det, d00 / det  # D⁻¹
+    v0, v1 = i00 * nu0 + i01 * nu1, i01 * nu0 + i11 * nu1  # D⁻¹ν
+    row[PAIR_QUAD] = nu0 * v0 + nu1 * v1
+    for u in range(3):
+        row[PAIR_B + u] = hr[u] * v0 + hb[u] * v1
+        for v in range(3):
+            row[PAIR_G + 3 * u + v] = hr[u] * (i00 * hr[v] + i01 * hb[v]) + hb[u] * (i01 * hr[v] + i11 * hb[v])
+    row[PAIR_LOG_DET] = math.log(det)
 
 
 @njit(cache=True, _nrt=False)
@@ -112,27 +121,29 @@ def best_joint_hypothesis(info, ll, p0, Pc, slot, scratch):
     """Every joint hypothesis, scored (:func:`joint_slots`); the best is written into ``slot`` (n,) (-1: new).
 
     The hypotheses are counted like an odometer: sighting 0's choice turns fastest, through its candidates
-    (``ll[i, k] > -inf``) and "new" (-1); a hypothesis that gives one landmark two sightings is skipped.
-    ``info`` from :func:`pair_information`, ``p0`` (n,) :math:`\\log p_0`, ``Pc`` (3, 3) the common pose
-    covariance; ``scratch = (choice (n,) int, used (N,) bool, total (N_PAIR_SLOTS,))`` the arrays it counts in."""
+    (``ll[i, k] > -inf``) and "new" (-1); a hypothesis that gives one landmark two sightings of one camera frame is
+    skipped. ``info`` from :func:`pair_information`, ``p0`` (n,) :math:`\\log p_0`, ``Pc`` (3, 3) the common pose
+    covariance; ``scratch = (choice (n,) int, used (N,) int, total (N_PAIR_SLOTS,), group (n,) int)``: the arrays
+    it counts in, and the camera frame of each sighting (all 0 for one instant; the frames of
+    :mod:`~fastslam_edu.landmark.gap_window` come one after the other)."""
     n, K = ll.shape
-    choice, used, total = scratch
+    choice, used, total, group = scratch
     choice[:] = -1
     best = -math.inf
     while True:
         # (np.int64(0), not 0: a literal 0 would make numba compile joint_loglik a second time, for the constant)
         ok, score, n_assigned = True, 0.0, np.int64(0)
-        used[:] = False
+        used[:] = -1  # the frame that last took each landmark
         total[:] = 0.0
         for i in range(n):
             k = choice[i]
             if k < 0:
                 score += p0[i]
-            elif used[k]:
+            elif used[k] == group[i]:
                 ok = False
                 break
             else:
-                used[k] = True
+                used[k] = group[i]
                 for c in range(total.shape[0]):  # (number by number: see copy_row)
                     total[c] += info[i, k, c]
                 n_assigned += 1
@@ -202,4 +213,4 @@ def det3_of(r0, r1, r2):
 
 
 __all__ = ["JOINT_MAX_HYPOTHESES", "PAIR_QUAD", "PAIR_B", "PAIR_G", "PAIR_LOG_DET", "N_PAIR_SLOTS", "joint_slots",
-           "pair_information", "best_joint_hypothesis", "joint_loglik", "det3_of"]
+           "pair_information", "write_pair_row", "best_joint_hypothesis", "joint_loglik", "det3_of"]
