@@ -219,3 +219,17 @@ def test_a_run_with_windows_is_reproducible_and_decides_every_held_frame():
 def test_bad_window_settings_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         AssociationParams(**kwargs)
+
+
+def test_a_log_that_ends_inside_a_window_decides_it():
+    """Sightings stop from 100 s to 117 s of a 120 s log, and a window holds up to 1000 sightings or 10 s: the window
+    the last frames open is still open when the log ends, and run_unknown decides it then (a move recorded for every
+    particle after 117 s, most of those frames' sightings given landmarks)."""
+    stream = gappy_stream(1, start=100.0, length=17.0)
+    result = run_unknown(stream, dataclasses.replace(SIM, gap_window_sightings=1000), 5)
+    t0 = stream.t[0]
+    last = result.gap_moves[result.gap_moves[:, 0] - t0 > 117.0 - 1e-9]
+    assert len(last) == SIM.filter.n_particles  # one window, every particle decided it
+    step_of = np.repeat(np.arange(len(stream)), np.diff(stream.offsets))
+    tail = stream.t[step_of] - t0 > 117.0
+    assert tail.any() and np.mean(result.history[tail] >= 0) > 0.5
