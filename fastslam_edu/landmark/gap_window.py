@@ -45,7 +45,7 @@ from fastslam_edu.landmark.association_decision import associate_particle_kernel
 from fastslam_edu.landmark.association_likelihood import (drift_covariance, drift_variances, innovation_with_pose,
                                                           new_landmark_loglik, pose_jacobian)
 from fastslam_edu.landmark.joint_compatibility import (JOINT_MAX_HYPOTHESES, N_PAIR_SLOTS, best_joint_hypothesis,
-                                                      det3_of, write_pair_row)
+                                                      solve_with_prior, write_pair_row)
 from fastslam_edu.landmark.landmark_existence import retire_landmarks
 
 #: Gauss–Newton steps of :func:`window_correction` (a heading error of 0.5 rad converges in two or three).
@@ -133,9 +133,7 @@ def window_is_due(win, t, rules):
 @njit(cache=True, _nrt=False)
 def holds_frame(win, t, rules):
     """Whether the frame at ``t`` [s] goes into the window: one is open, or the frame ends a gap (no sighting for
-    more than ``rules.drift_cap_s``; ``rules.window_sightings`` 0: never). Updates the time last seen."""
-    if rules.window_sightings <= 0:
-        return False
+    more than ``rules.drift_cap_s``). Updates the time last seen. (A run without windows has no ``win``.)"""
     gap = t - win.clock[LAST_SEEN]
     win.clock[LAST_SEEN] = t
     if win.count[0] > 0:
@@ -268,25 +266,9 @@ def window_correction(P, m, L, win, slot, rules):
                 write_pair_row((nu0, nu1), (q00, q01, q11), hr, hb, win.info[s, k])
                 for c in range(N_PAIR_SLOTS):
                     total[c] += win.info[s, k, c]
-        g = ((total[4], total[5], total[6]), (total[7], total[8], total[9]), (total[10], total[11], total[12]))
-        b0, b1, b2 = total[1], total[2], total[3]
-        a0 = (1.0 + _pg(prior, 0, g, 0), _pg(prior, 0, g, 1), _pg(prior, 0, g, 2))  # A = I + P_g G, by rows
-        a1 = (_pg(prior, 1, g, 0), 1.0 + _pg(prior, 1, g, 1), _pg(prior, 1, g, 2))
-        a2 = (_pg(prior, 2, g, 0), _pg(prior, 2, g, 1), 1.0 + _pg(prior, 2, g, 2))
-        c0 = prior[0, 0] * b0 + prior[0, 1] * b1 + prior[0, 2] * b2 - e0  # c = P_g b - δ_i
-        c1 = prior[1, 0] * b0 + prior[1, 1] * b1 + prior[1, 2] * b2 - e1
-        c2 = prior[2, 0] * b0 + prior[2, 1] * b1 + prior[2, 2] * b2 - e2
-        det_a = det3_of(a0, a1, a2)  # Δ = A⁻¹ c by Cramer's rule
-        e0 += det3_of((c0, a0[1], a0[2]), (c1, a1[1], a1[2]), (c2, a2[1], a2[2])) / det_a
-        e1 += det3_of((a0[0], c0, a0[2]), (a1[0], c1, a1[2]), (a2[0], c2, a2[2])) / det_a
-        e2 += det3_of((a0[0], a0[1], c0), (a1[0], a1[1], c1), (a2[0], a2[1], c2)) / det_a
+        (d0, d1, d2), _ = solve_with_prior(prior, total, (e0, e1, e2))  # Δ = A⁻¹(P_g b - δ_i)
+        e0, e1, e2 = e0 + d0, e1 + d1, e2 + d2
     return e0, e1, e2
-
-
-@njit(cache=True, _nrt=False)
-def _pg(prior, u, g, v):
-    """Entry ``(u, v)`` of :math:`P_g G`, ``G`` a tuple of rows."""
-    return prior[u, 0] * g[0][v] + prior[u, 1] * g[1][v] + prior[u, 2] * g[2][v]
 
 
 @njit(cache=True, _nrt=False)

@@ -178,18 +178,29 @@ def joint_loglik(total, n_assigned, Pc):
     :math:`\\nu^\\top S^{-1}\\nu = a - b^\\top A^{-1} P_c b` and :math:`\\log\\det S = \\sum\\log\\det D_i + \\log\\det A`."""
     if n_assigned == 0:
         return 0.0
-    # A = I + P_c G and c = P_c b, as scalars: this runs for every hypothesis, and makes no array
+    # A⁻¹ P_c b and det A, as scalars: this runs for every hypothesis, and makes no array
+    (x0, x1, x2), det_a = solve_with_prior(Pc, total, (0.0, 0.0, 0.0))
+    quad = total[PAIR_QUAD] - (total[PAIR_B] * x0 + total[PAIR_B + 1] * x1 + total[PAIR_B + 2] * x2)
+    return -0.5 * quad - n_assigned * LOG_2PI - 0.5 * (total[PAIR_LOG_DET] + math.log(det_a))
+
+
+@njit(cache=True, _nrt=False)
+def solve_with_prior(Pc, total, delta):
+    """:math:`x = A^{-1}(P_c b - \\delta)` and :math:`\\det A`, :math:`A = I + P_c G` (3×3), with :math:`b` and
+    :math:`G` from the summed rows ``total`` (:data:`N_PAIR_SLOTS`,) of :func:`pair_information` and ``delta`` three
+    numbers: ``((x0, x1, x2), det_a)``. With :math:`\\delta = 0` it is :func:`joint_loglik`'s
+    :math:`A^{-1} P_c b`; with the current estimate :math:`\\delta_i` it is a Gauss–Newton step under the prior
+    :math:`P_c` (:func:`fastslam_edu.landmark.gap_window.window_correction`)."""
     a00, a01, a02 = 1.0 + _pc_g(Pc, total, 0, 0), _pc_g(Pc, total, 0, 1), _pc_g(Pc, total, 0, 2)
     a10, a11, a12 = _pc_g(Pc, total, 1, 0), 1.0 + _pc_g(Pc, total, 1, 1), _pc_g(Pc, total, 1, 2)
     a20, a21, a22 = _pc_g(Pc, total, 2, 0), _pc_g(Pc, total, 2, 1), 1.0 + _pc_g(Pc, total, 2, 2)
-    c0, c1, c2 = _pc_b(Pc, total, 0), _pc_b(Pc, total, 1), _pc_b(Pc, total, 2)
+    c0, c1, c2 = _pc_b(Pc, total, 0) - delta[0], _pc_b(Pc, total, 1) - delta[1], _pc_b(Pc, total, 2) - delta[2]
     det_a = det3_of((a00, a01, a02), (a10, a11, a12), (a20, a21, a22))
-    # A⁻¹ P_c b by Cramer's rule: unknown j is the determinant of A with column j replaced by c, over det A
+    # Cramer's rule: unknown j is the determinant of A with column j replaced by c, over det A
     x0 = det3_of((c0, a01, a02), (c1, a11, a12), (c2, a21, a22)) / det_a
     x1 = det3_of((a00, c0, a02), (a10, c1, a12), (a20, c2, a22)) / det_a
     x2 = det3_of((a00, a01, c0), (a10, a11, c1), (a20, a21, c2)) / det_a
-    quad = total[PAIR_QUAD] - (total[PAIR_B] * x0 + total[PAIR_B + 1] * x1 + total[PAIR_B + 2] * x2)
-    return -0.5 * quad - n_assigned * LOG_2PI - 0.5 * (total[PAIR_LOG_DET] + math.log(det_a))
+    return (x0, x1, x2), det_a
 
 
 @njit(cache=True, inline="always")
@@ -213,4 +224,4 @@ def det3_of(r0, r1, r2):
 
 
 __all__ = ["JOINT_MAX_HYPOTHESES", "PAIR_QUAD", "PAIR_B", "PAIR_G", "PAIR_LOG_DET", "N_PAIR_SLOTS", "joint_slots",
-           "pair_information", "write_pair_row", "best_joint_hypothesis", "joint_loglik", "det3_of"]
+           "pair_information", "write_pair_row", "best_joint_hypothesis", "joint_loglik", "solve_with_prior", "det3_of"]
