@@ -695,7 +695,8 @@ def test_the_benchmark_interval_of_the_mean_of_medians():
 def test_resampling_the_maps_in_place_equals_fancy_indexing():
     """select_maps (in place, in copy_order) against numpy's ``a[idx]`` on every array of the set (an independent
     copy), for increasing, repeated and shuffled indices (shuffled ones are the same draws in increasing order:
-    ``a[np.sort(idx)]``); the known-correspondence set's select_in_place likewise."""
+    ``a[np.sort(idx)]``), on the slots each particle holds (``n``; a free slot is never read, so it is not copied);
+    the known-correspondence set's select_in_place likewise, every slot."""
     from fastslam_edu.landmark.association import select_maps
     from fastslam_edu.landmark.particle_resampling import copy_order, is_increasing, select_in_place
     from fastslam_edu.landmark.step_records import Particles
@@ -708,10 +709,15 @@ def test_resampling_the_maps_in_place_equals_fancy_indexing():
         P = initial_particles(M, K, np.zeros(3))
         for a in P[:-1]:
             a[...] = rng.integers(-50, 50, a.shape)  # every slot distinct enough to notice a wrong copy
+        P.n[:] = rng.integers(0, K + 1, M)  # slots held, the rest free
         expected = [a[np.sort(idx)].copy() for a in P[:-1]]
         select_maps(P, idx)
         for name, a, b in zip(P._fields, P[:-1], expected):
-            np.testing.assert_array_equal(a, b, err_msg=name)
+            if a.ndim == 1 or name == "poses":
+                np.testing.assert_array_equal(a, b, err_msg=name)
+                continue
+            for m in range(M):
+                np.testing.assert_array_equal(a[m, :P.n[m]], b[m, :P.n[m]], err_msg=f"{name}, particle {m}")
         assert not P.logw.any()
         Q = Particles(rng.normal(size=(M, 3)), rng.normal(size=(M, K, 2)), rng.normal(size=(M, K, 2, 2)),
                       rng.random((M, K)) < 0.5, rng.integers(0, 9, (M, K)), rng.normal(size=M))

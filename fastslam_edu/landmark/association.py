@@ -99,7 +99,7 @@ of landmarks seen before then move the pose by the proposal
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -140,12 +140,14 @@ def select_maps(P, idx):
 
 @njit(cache=True, _nrt=False)
 def copy_map_particle(src, i, dst, m):
-    """Particle ``i`` of ``src``: its pose and its map (every slot, held or not) written over particle ``m`` of
-    ``dst`` (both :class:`~fastslam_edu.landmark.association_params.MapParticles`), number by number."""
+    """Particle ``i`` of ``src``: its pose and its map written over particle ``m`` of ``dst`` (both
+    :class:`~fastslam_edu.landmark.association_params.MapParticles`), number by number. Only the ``n`` slots held
+    are copied: a free slot is never read, and :func:`~fastslam_edu.landmark.landmark_existence.add_landmark` writes
+    every field of the slot it takes."""
     for a in range(3):
         dst.poses[m, a] = src.poses[i, a]
     dst.n[m] = src.n[i]
-    for k in range(src.mu.shape[1]):
+    for k in range(src.n[i]):
         dst.mu[m, k, 0], dst.mu[m, k, 1] = src.mu[i, k, 0], src.mu[i, k, 1]
         dst.sigma[m, k, 0, 0], dst.sigma[m, k, 0, 1] = src.sigma[i, k, 0, 0], src.sigma[i, k, 0, 1]
         dst.sigma[m, k, 1, 0], dst.sigma[m, k, 1, 1] = src.sigma[i, k, 1, 0], src.sigma[i, k, 1, 1]
@@ -282,7 +284,7 @@ class AssociationResult:
     ``filter_seconds``: the run's wall time without ``compile_seconds``, numba's compiling (or loading from
     its cache) of the kernels (:class:`fastslam_edu.core.timing.RunTimer`). ``gap_moves`` (C, 5): each particle's
     decision of a window after a gap (``gap_window_sightings``): time [s], particle, rigid motion (dx, dy [m],
-    dtheta [rad]; zeros: not moved).
+    dtheta [rad]; zeros: not moved); no rows without windows.
     """
 
     t: np.ndarray
@@ -300,7 +302,7 @@ class AssociationResult:
     particles: MapParticles
     params: AssociationParams
     compile_seconds: float = 0.0
-    gap_moves: np.ndarray | None = None
+    gap_moves: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
 
 
 def run_unknown(stream: EventStream, params: AssociationParams = AssociationParams(), rng=0, *,

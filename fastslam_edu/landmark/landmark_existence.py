@@ -68,7 +68,15 @@ def in_view(pose, mu, rules):
     behind the robot's sideways line may be in view); :math:`\\phi_{\\max} \\ge \\pi` lets every bearing in. At
     :math:`r = 0` the direction is that of :math:`\\operatorname{atan2}(0, 0) = 0`, :math:`\\delta / r = (1, 0)`.
     """
-    dx, dy = mu[0] - pose[0], mu[1] - pose[1]
+    return in_view_along(pose[0], pose[1], math.cos(pose[2]), math.sin(pose[2]), math.cos(rules.fov), mu, rules)
+
+
+@njit(cache=True, _nrt=False)
+def in_view_along(x, y, cos_theta, sin_theta, cos_fov, mu, rules):
+    """:func:`in_view` from the position ``(x, y)`` [m] with the heading's unit vector :math:`(\cos\theta,
+    \sin\theta)` and :math:`\cos\phi_{\max}` given, for a loop over a particle's landmarks that computes them
+    once (:func:`negative_evidence`)."""
+    dx, dy = mu[0] - x, mu[1] - y
     r = math.sqrt(dx * dx + dy * dy)
     if not rules.min_range <= r <= rules.max_range:
         return False
@@ -76,7 +84,7 @@ def in_view(pose, mu, rules):
         return True
     if r == 0.0:
         dx, r = 1.0, 1.0  # atan2(0, 0) = 0: the direction of the x axis
-    return dx * math.cos(pose[2]) + dy * math.sin(pose[2]) >= r * math.cos(rules.fov)
+    return dx * cos_theta + dy * sin_theta >= r * cos_fov
 
 
 @njit(cache=True, _nrt=False)
@@ -98,9 +106,11 @@ def negative_evidence(P, m, taken, rules):
     """Count a miss for every landmark of particle ``m`` in view but not taken at this instant; remove the
     provisional ones whose existence log odds (:func:`existence_log_odds`) fall below zero: more likely clutter than
     real. A confirmed landmark whose log odds fall below zero is retired by :func:`retire_landmarks`."""
+    x, y, cos_fov = P.poses[m, 0], P.poses[m, 1], math.cos(rules.fov)  # (in_view's, once for all the landmarks)
+    c, s = math.cos(P.poses[m, 2]), math.sin(P.poses[m, 2])
     k = np.int64(0)  # (not 0: see retire_landmarks)
     while k < P.n[m]:
-        if not taken[k] and in_view(P.poses[m], P.mu[m, k], rules):
+        if not taken[k] and in_view_along(x, y, c, s, cos_fov, P.mu[m, k], rules):
             P.missed[m, k] += 1
             P.log_odds[m, k] = existence_log_odds(P.log_odds[m, k], False, rules)
             if P.log_odds[m, k] < 0.0 and P.evidence[m, k] < rules.n_confirm:
@@ -160,5 +170,5 @@ def retire_landmarks(P, m, rules, renames, n_renames, q):
         remove_landmark(P, m, k)
 
 
-__all__ = ["add_landmark", "remove_landmark", "in_view", "existence_log_odds", "negative_evidence", "heir_of",
+__all__ = ["add_landmark", "remove_landmark", "in_view", "in_view_along", "existence_log_odds", "negative_evidence", "heir_of",
            "RENAME_INSTANT", "RENAME_PARTICLE", "RENAME_HEIR", "RENAME_TAKEN", "retire_landmarks"]
