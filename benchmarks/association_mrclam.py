@@ -44,6 +44,10 @@ the ratio (target >= 0.95), spurious landmarks (target <= 1), the aligned landma
 seconds (target <= 30 s per robot on the 2-core machine); the JSON gains ``smoother`` (its runs and table).
 ``--smoother-runs K``: the smoother starts from K filter runs (seeds s, s + 1000, ..., s + 1000 (K-1) for seed s),
 whose starts compete by their final penalised cost; its seconds include the K-1 extra filter runs.
+``--smoother-bounds``: also two references computed from the true correspondences
+(:mod:`fastslam_edu.evaluation.smoother_bounds`): the smoother's cost over theirs, :math:`J / J^*` (above 1: the
+cost prefers the truth and the search stopped short of it), the path solved with them, and the association a fresh
+assignment reaches at that path (the path-given bound: near the oracle, the path is what the smoother misses).
 
 ``--deferred``, ``--split``: the filter with ``AssociationParams(deferred=True)`` (deferred commitment) and
 ``split_tentative=True`` (a provisional landmark seen twice in one frame splits). ``--gap-window K``:
@@ -51,7 +55,7 @@ whose starts compete by their final penalised cost; its seconds include the K-1 
 together per particle, :mod:`fastslam_edu.landmark.gap_window`).
 
 Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs N | --scheduler ADDRESS] [--greedy] [--deferred]
-[--split] [--gap-window K] [--smoother]
+[--split] [--gap-window K] [--smoother [--smoother-runs K] [--smoother-bounds]]
 [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data; about 30 s on 2 cores for 3 seeds)
 """
@@ -75,6 +79,7 @@ from fastslam_edu.app.experiment import (anonymous_stream, association_ceiling, 
 from fastslam_edu.app.sweep import SweepError, add_sweep_options, run_sweep  # noqa: E402
 from fastslam_edu.datasets import mrclam_path  # noqa: E402
 from fastslam_edu.evaluation.association import OnlineCeiling  # noqa: E402
+from fastslam_edu.evaluation.smoother_bounds import smoother_bounds  # noqa: E402
 from fastslam_edu.evaluation.metrics import mean_of_medians  # noqa: E402
 from fastslam_edu.landmark.association import AssociationParams, run_unknown  # noqa: E402
 from fastslam_edu.landmark.smoother_association import smooth_association  # noqa: E402
@@ -82,6 +87,7 @@ from fastslam_edu.landmark.smoother_association import smooth_association  # noq
 ROBOTS = [(1, 2), (6, 1), (6, 2), (6, 3), (6, 4), (6, 5)]  # named by the targets
 EXTRA = [(1, 1)]  # has groundtruth, never tuned on
 TARGETS = {"ratio_to_oracle": 0.95, "landmarks_spurious": 2, "landmark_error_aligned_mean_m": 0.30}
+BOUND_KEYS = ("cost_true", "cost_to_true", "truth_path_rmse_aligned_m", "path_given_ratio", "path_given_spurious")
 SMOOTHER_TARGETS = {"ratio_to_oracle": 0.95, "landmarks_spurious": 1, "landmark_error_aligned_mean_m": 0.15,
                     "seconds": 30.0}
 
@@ -111,9 +117,11 @@ def _run(dataset: int, robot: int, seed: int, params: AssociationParams) -> dict
             "known_seconds": known_seconds}
 
 
-def _run_smoother(dataset: int, robot: int, seed: int, params: AssociationParams, runs: int = 1) -> dict:
+def _run_smoother(dataset: int, robot: int, seed: int, params: AssociationParams, runs: int = 1,
+                  with_bounds: bool = False) -> dict:
     """One job of the ``--smoother`` sweep: FastSLAM without barcodes (``runs`` runs, seeds ``seed + 1000 k``), then
-    the smoother's association from them."""
+    the smoother's association from them; ``with_bounds``: and the two references of
+    :func:`fastslam_edu.evaluation.smoother_bounds.smoother_bounds` from the first run (not in ``seconds``)."""
     result, summary, context = run_mrclam_unknown(mrclam_path(dataset), robot, params, seed=seed)
     started = time.perf_counter()
     results = [result] + [run_unknown(context["stream"], params, np.random.default_rng(seed + 1000 * k))
@@ -122,18 +130,30 @@ def _run_smoother(dataset: int, robot: int, seed: int, params: AssociationParams
     part = summarize_smoother_association(smoothed, context["stream"], context["true_index"], context["dataset"],
                                           context["log"])
     oracle = summary["association_accuracy_oracle"]
-    return {"dataset": dataset, "robot": robot, "seed": seed, "oracle": oracle,
-            "filter_accuracy": summary["association_accuracy"], "accuracy": part["association_accuracy"],
-            "ratio_to_oracle": part["association_accuracy"] / oracle, "landmarks_spurious": part["landmarks_spurious"],
-            "landmarks_in_map": part["landmarks_in_map"],
-            "landmark_error_aligned_mean_m": part["landmark_error_aligned_mean_m"],
-            "path_rmse_aligned_m": part["path_rmse_aligned_m"], "seconds": time.perf_counter() - started}
+    row = {"dataset": dataset, "robot": robot, "seed": seed, "oracle": oracle,
+           "filter_accuracy": summary["association_accuracy"], "accuracy": part["association_accuracy"],
+           "ratio_to_oracle": part["association_accuracy"] / oracle, "landmarks_spurious": part["landmarks_spurious"],
+           "landmarks_in_map": part["landmarks_in_map"],
+           "landmark_error_aligned_mean_m": part["landmark_error_aligned_mean_m"],
+           "path_rmse_aligned_m": part["path_rmse_aligned_m"], "seconds": time.perf_counter() - started,
+           "cost": smoothed.cost}
+    if with_bounds:
+        truth, given = smoother_bounds(context["stream"], context["true_index"], result)
+        scored = {name: summarize_smoother_association(r, context["stream"], context["true_index"],
+                                                       context["dataset"], context["log"])
+                  for name, r in (("truth", truth), ("given", given))}
+        row.update(cost_true=truth.cost, cost_to_true=smoothed.cost / truth.cost,
+                   truth_path_rmse_aligned_m=scored["truth"]["path_rmse_aligned_m"],
+                   path_given_ratio=scored["given"]["association_accuracy"] / oracle,
+                   path_given_spurious=scored["given"]["landmarks_spurious"])
+    return row
 
 
 def smoother_table(runs: list[dict], robots) -> list[dict]:
     """Per robot: the medians over the seeds of the ``--smoother`` runs, the range of the ratio, the targets met."""
     keys = ("oracle", "filter_accuracy", "accuracy", "ratio_to_oracle", "landmarks_spurious", "landmarks_in_map",
-            "landmark_error_aligned_mean_m", "path_rmse_aligned_m", "seconds")
+            "landmark_error_aligned_mean_m", "path_rmse_aligned_m", "seconds", "cost")
+    keys += BOUND_KEYS if all("cost_true" in x for x in runs) else ()
     table = []
     for d, r in robots:
         mine = [x for x in runs if (x["dataset"], x["robot"]) == (d, r)]
@@ -161,6 +181,14 @@ def print_smoother_table(table: list[dict], seeds: int) -> None:
               f"{row['path_rmse_aligned_m']:>9.3f} {row['seconds']:>7.1f}{mark['seconds']}")
     print("* misses the smoother's target (ratio to the oracle >= 0.95, spurious <= 1, aligned landmark error "
           "<= 0.15 m, <= 30 s per robot)")
+    if table and "cost_true" in table[0]:
+        print("References from the true correspondences (evaluation.smoother_bounds), medians: J/J* the smoother's "
+              "penalised cost over the true correspondences'; path: the path solved with them, aligned RMSE; "
+              "given path: a fresh assignment and alternation at that path, its ratio to the oracle and spurious")
+        print(f"{'robot':<6} {'J/J*':>6} {'path [m]':>9} {'given path':>11} {'spurious':>9}")
+        for row in table:
+            print(f"{row['robot']:<6} {row['cost_to_true']:>6.2f} {row['truth_path_rmse_aligned_m']:>9.3f} "
+                  f"{row['path_given_ratio']:>11.2f} {row['path_given_spurious']:>9.1f}")
 
 
 def main(argv=None) -> int:
@@ -182,6 +210,9 @@ def main(argv=None) -> int:
                     help="also the smoother's association from each filter run (second table, JSON 'smoother')")
     ap.add_argument("--smoother-runs", type=int, default=1, metavar="K",
                     help="with --smoother: start the smoother from K filter runs (default 1)")
+    ap.add_argument("--smoother-bounds", action="store_true",
+                    help="with --smoother: also the references from the true correspondences (J*, the path-given "
+                         "bound; evaluation.smoother_bounds), about 1.5 x the smoother's time more")
     ap.add_argument("--out", type=Path, default=None,
                     help="JSON file (default results/association_mrclam.json; association_mrclam_greedy.json, "
                          "..._deferred, ..._split, ..._gapK with those options)")
@@ -248,8 +279,8 @@ def main(argv=None) -> int:
            "table": table, "runs": runs, "mean_ratio_to_oracle": {"mean": mean, "low": low, "high": high}}
     if args.smoother:
         try:
-            smoothed = run_sweep(_run_smoother, [(d, r, s, params, args.smoother_runs) for d, r in robots
-                                                 for s in range(args.seeds)],
+            smoothed = run_sweep(_run_smoother, [(d, r, s, params, args.smoother_runs, args.smoother_bounds)
+                                                 for d, r in robots for s in range(args.seeds)],
                                  n_jobs=args.jobs, scheduler=args.scheduler)
         except SweepError as error:
             sys.exit(f"{ap.prog}: error: {error}")

@@ -1,4 +1,5 @@
-"""Data association re-decided in the smoother (fastslam_edu.landmark.smoother_association), on simulated data."""
+"""Data association re-decided in the smoother (fastslam_edu.landmark.smoother_association) and its references from the
+true correspondences (fastslam_edu.evaluation.smoother_bounds), on simulated data."""
 
 from __future__ import annotations
 
@@ -7,9 +8,11 @@ import dataclasses
 import numpy as np
 import pytest
 
+from fastslam_edu.core.se2 import compose, relative
 from fastslam_edu.datasets.events import event_stream
 from fastslam_edu.datasets.sim import SimConfig, simulate_dataset
 from fastslam_edu.evaluation import association as score
+from fastslam_edu.evaluation.smoother_bounds import smoother_bounds, true_labels
 from fastslam_edu.landmark import smoother_association as sa
 from fastslam_edu.landmark.association import AssociationParams, run_unknown
 from fastslam_edu.landmark.fastslam import FastSLAMParams
@@ -203,3 +206,50 @@ def test_the_incremental_start_is_one_more_start_competing_by_cost(sim):
     assert len(with_it.costs) == len(without.costs) + 1
     assert with_it.cost <= without.cost + 1e-9
     assert with_it.cost == min(with_it.costs)
+
+
+def twisted(pose_mean, angle):
+    """The path turned by ``angle`` [rad] about its pose half-way: everything after it swings round."""
+    h = len(pose_mean) // 2
+    out = pose_mean.copy()
+    pivot = out[h] + np.array([0.0, 0.0, angle])
+    out[h:] = compose(np.broadcast_to(pivot, (len(out) - h, 3)), relative(np.broadcast_to(out[h], (len(out) - h, 3)),
+                                                                           out[h:]))
+    return out
+
+
+def test_true_labels_make_clutter_an_outlier():
+    assert true_labels([2, -1, 0, -1]).tolist() == [2, sa.OUTLIER, 0, sa.OUTLIER]
+
+
+def test_the_smoothers_references_do_not_depend_on_the_filters_path(sim):
+    """From a filter path swung 0.5 rad half-way, both references start from the true correspondences and solve
+    their own path (the same, within 5 mm, as from the filter's own path, 1.8 m away): the truth keeps every sighting
+    and the path-given bound reassigns them all correctly. On this easy log the smoother, from the same bad path,
+    finds the truth too, at the same cost: J and J* are on one scale."""
+    data, stream, filt = sim
+    truth_index = stream.landmark
+    bad = dataclasses.replace(filt, pose_mean=twisted(np.asarray(filt.pose_mean), 0.5))
+    truth, given = smoother_bounds(stream, truth_index, bad)
+    for r in (truth, given):
+        assert accuracy(r.history, r.landmark_ident, r.landmarks, data, truth_index) >= 0.99
+    assert np.sum(score.match_landmarks(given.landmarks, data.landmark_positions) < 0) == 0
+    straight, _ = smoother_bounds(stream, truth_index, filt)  # from the filter's own path: the same optimum
+    assert np.abs(truth.poses - straight.poses).max() < 0.005 < 1.0 < np.abs(bad.pose_mean - filt.pose_mean).max()
+    assert truth.cost == pytest.approx(straight.cost, rel=1e-5)
+    smoothed = sa.smooth_association(stream, bad, settings=sa.SmootherAssociationParams(restarts=1))
+    assert smoothed.cost == pytest.approx(truth.cost, rel=1e-5)  # here the smoother finds the truth: J on one scale
+    assert accuracy(smoothed.history, smoothed.landmark_ident, smoothed.landmarks, data, truth_index) >= 0.99
+    again = smoother_bounds(stream, truth_index, bad)  # no random step: the same numbers
+    assert again[0].cost == truth.cost and np.array_equal(again[1].history, given.history)
+
+
+def test_the_smoothers_references_name_bad_input(sim):
+    data, stream, filt = sim
+    with pytest.raises(ValueError, match="true_index has shape"):
+        smoother_bounds(stream, stream.landmark[:-1], filt)
+    short = dataclasses.replace(stream, t=stream.t[:10], dt=stream.dt[:10], u=stream.u[:10],
+                                offsets=stream.offsets[:11], z=stream.z[:stream.offsets[10]],
+                                landmark=stream.landmark[:stream.offsets[10]])
+    with pytest.raises(ValueError, match="the filter ran"):
+        smoother_bounds(short, short.landmark, filt)

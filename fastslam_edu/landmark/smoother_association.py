@@ -515,14 +515,20 @@ def smooth_association(stream: EventStream, filter_result, params: FastSLAMParam
         state = alternate(log, *incremental_start(log, settings), settings)
         costs.append(state.cost)
         best = state if state.cost < best.cost else best
-    N = len(best.landmarks)
-    pose_mean = poses_between(np.arange(len(stream)), log.keys, best.poses, log.path)
+    return result_of(log, best, costs, time.perf_counter() - started)
+
+
+def result_of(log: SightingLog, state: _State, costs: list, seconds: float) -> SmootherAssociationResult:
+    """The :class:`SmootherAssociationResult` of a solution ``state`` of :func:`alternate` (``costs``: of every
+    restart; ``seconds``: the wall time)."""
+    N = len(state.landmarks)
+    pose_mean = poses_between(np.arange(len(log.stream)), log.keys, state.poses, log.path)
     return SmootherAssociationResult(
-        t=stream.t[log.keys], steps=log.keys, poses=best.poses, pose_mean=pose_mean, landmarks=best.landmarks,
-        landmarks_cov=best.cov, landmark_ident=np.arange(N),
-        landmark_seen=np.bincount(best.labels[best.labels >= 0], minlength=N), history=best.labels, cost=best.cost,
-        costs=costs, rounds=best.rounds, loop_closures=best.loops, outliers=int(np.sum(best.labels < 0)),
-        seconds=time.perf_counter() - started)
+        t=log.stream.t[log.keys], steps=log.keys, poses=state.poses, pose_mean=pose_mean, landmarks=state.landmarks,
+        landmarks_cov=state.cov, landmark_ident=np.arange(N),
+        landmark_seen=np.bincount(state.labels[state.labels >= 0], minlength=N), history=state.labels,
+        cost=state.cost, costs=costs, rounds=state.rounds, loop_closures=state.loops,
+        outliers=int(np.sum(state.labels < 0)), seconds=seconds)
 
 
 __all__ = ["OUTLIER", "INFEASIBLE", "SightingLog", "prepare_log", "sighting_poses", "SmootherAssociationParams",
@@ -530,4 +536,4 @@ __all__ = ["OUTLIER", "INFEASIBLE", "SightingLog", "prepare_log", "sighting_pose
            "frame_costs", "assign_frame", "assign_sightings", "compact", "solve_labelled", "two_clusters",
            "split_moves", "merge_moves", "prune_landmarks", "maximum_clique", "loop_candidates",
            "consistent_pairs", "loop_closures", "alternate", "grown_start", "reassigned_start", "starts_from_filter",
-           "motion_density", "predict_pose", "localise", "incremental_start", "smooth_association"]
+           "motion_density", "predict_pose", "localise", "incremental_start", "smooth_association", "result_of"]
