@@ -48,6 +48,8 @@ whose starts compete by their final penalised cost; its seconds include the K-1 
 (:mod:`fastslam_edu.evaluation.smoother_bounds`): the smoother's cost over theirs, :math:`J / J^*` (above 1: the
 cost prefers the truth and the search stopped short of it), the path solved with them, and the association a fresh
 assignment reaches at that path (the path-given bound: near the oracle, the path is what the smoother misses).
+``--transient-objects``: the smoother with ``SmootherAssociationParams(transient_objects=True)`` (the final map
+without the landmarks more likely transient than static: other robots that stood still, then left).
 
 ``--deferred``, ``--split``: the filter with ``AssociationParams(deferred=True)`` (deferred commitment) and
 ``split_tentative=True`` (a provisional landmark seen twice in one frame splits). ``--gap-window K``:
@@ -55,7 +57,7 @@ assignment reaches at that path (the path-given bound: near the oracle, the path
 together per particle, :mod:`fastslam_edu.landmark.gap_window`).
 
 Usage: python benchmarks/association_mrclam.py [--seeds 3] [--jobs N | --scheduler ADDRESS] [--greedy] [--deferred]
-[--split] [--gap-window K] [--smoother [--smoother-runs K] [--smoother-bounds]]
+[--split] [--gap-window K] [--smoother [--smoother-runs K] [--smoother-bounds] [--transient-objects]]
 [--out FILE]
 (data from $FASTSLAM_EDU_DATA, default ./data; about 30 s on 2 cores for 3 seeds)
 """
@@ -82,7 +84,7 @@ from fastslam_edu.evaluation.association import OnlineCeiling  # noqa: E402
 from fastslam_edu.evaluation.smoother_bounds import smoother_bounds  # noqa: E402
 from fastslam_edu.evaluation.metrics import mean_of_medians  # noqa: E402
 from fastslam_edu.landmark.association import AssociationParams, run_unknown  # noqa: E402
-from fastslam_edu.landmark.smoother_association import smooth_association  # noqa: E402
+from fastslam_edu.landmark.smoother_association import SmootherAssociationParams, smooth_association  # noqa: E402
 
 ROBOTS = [(1, 2), (6, 1), (6, 2), (6, 3), (6, 4), (6, 5)]  # named by the targets
 EXTRA = [(1, 1)]  # has groundtruth, never tuned on
@@ -118,15 +120,15 @@ def _run(dataset: int, robot: int, seed: int, params: AssociationParams) -> dict
 
 
 def _run_smoother(dataset: int, robot: int, seed: int, params: AssociationParams, runs: int = 1,
-                  with_bounds: bool = False) -> dict:
+                  with_bounds: bool = False, settings: SmootherAssociationParams = SmootherAssociationParams()) -> dict:
     """One job of the ``--smoother`` sweep: FastSLAM without barcodes (``runs`` runs, seeds ``seed + 1000 k``), then
-    the smoother's association from them; ``with_bounds``: and the two references of
+    the smoother's association from them (``settings``); ``with_bounds``: and the two references of
     :func:`fastslam_edu.evaluation.smoother_bounds.smoother_bounds` from the first run (not in ``seconds``)."""
     result, summary, context = run_mrclam_unknown(mrclam_path(dataset), robot, params, seed=seed)
     started = time.perf_counter()
     results = [result] + [run_unknown(context["stream"], params, np.random.default_rng(seed + 1000 * k))
                           for k in range(1, runs)]
-    smoothed = smooth_association(context["stream"], results)
+    smoothed = smooth_association(context["stream"], results, settings=settings)
     part = summarize_smoother_association(smoothed, context["stream"], context["true_index"], context["dataset"],
                                           context["log"])
     oracle = summary["association_accuracy_oracle"]
@@ -138,7 +140,7 @@ def _run_smoother(dataset: int, robot: int, seed: int, params: AssociationParams
            "path_rmse_aligned_m": part["path_rmse_aligned_m"], "seconds": time.perf_counter() - started,
            "cost": smoothed.cost}
     if with_bounds:
-        truth, given = smoother_bounds(context["stream"], context["true_index"], result)
+        truth, given = smoother_bounds(context["stream"], context["true_index"], result, settings)
         scored = {name: summarize_smoother_association(r, context["stream"], context["true_index"],
                                                        context["dataset"], context["log"])
                   for name, r in (("truth", truth), ("given", given))}
@@ -213,6 +215,9 @@ def main(argv=None) -> int:
     ap.add_argument("--smoother-bounds", action="store_true",
                     help="with --smoother: also the references from the true correspondences (J*, the path-given "
                          "bound; evaluation.smoother_bounds), about 1.5 x the smoother's time more")
+    ap.add_argument("--transient-objects", action="store_true",
+                    help="with --smoother: SmootherAssociationParams(transient_objects=True), the final map without "
+                         "the landmarks more likely transient than static")
     ap.add_argument("--out", type=Path, default=None,
                     help="JSON file (default results/association_mrclam.json; association_mrclam_greedy.json, "
                          "..._deferred, ..._split, ..._gapK with those options)")
@@ -279,7 +284,8 @@ def main(argv=None) -> int:
            "table": table, "runs": runs, "mean_ratio_to_oracle": {"mean": mean, "low": low, "high": high}}
     if args.smoother:
         try:
-            smoothed = run_sweep(_run_smoother, [(d, r, s, params, args.smoother_runs, args.smoother_bounds)
+            settings = SmootherAssociationParams(transient_objects=args.transient_objects)
+            smoothed = run_sweep(_run_smoother, [(d, r, s, params, args.smoother_runs, args.smoother_bounds, settings)
                                                  for d, r in robots for s in range(args.seeds)],
                                  n_jobs=args.jobs, scheduler=args.scheduler)
         except SweepError as error:

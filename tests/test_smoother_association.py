@@ -253,3 +253,43 @@ def test_the_smoothers_references_name_bad_input(sim):
                                 landmark=stream.landmark[:stream.offsets[10]])
     with pytest.raises(ValueError, match="the filter ran"):
         smoother_bounds(short, short.landmark, filt)
+
+
+def test_a_landmark_seen_only_for_a_while_is_transient(sim):
+    """static_against_transient against a loop over the camera frames with the filter's own in_view: Λ = n_out
+    log((1 - p_D)/(1 - p_F)) + ln n_view for every landmark. The most-seen landmark given only its sightings of the
+    middle third (another robot that stood there, then left) is transient (Λ <= 0): transient_outliers makes its
+    sightings outliers, and the smoother's final step (without_transients) drops it from the map; every other
+    landmark seen stays static and kept."""
+    from fastslam_edu.landmark.landmark_existence import in_view
+    from fastslam_edu.landmark.smoother_association_moves import static_against_transient
+
+    data, stream, filt, log, settings = _log_and_truth(sim)
+    truth = stream.landmark.copy()
+    k = int(np.argmax(np.bincount(truth)))
+    i = np.flatnonzero(truth == k)
+    t = stream.t[log.frame[i]]
+    third = (t[-1] - t[0]) / 3
+    labels = truth.copy()
+    labels[i[(t < t[0] + third) | (t > t[-1] - third)]] = sa.OUTLIER
+    poses, landmarks = filt.pose_mean[log.keys], data.landmark_positions
+    lam = static_against_transient(log, poses, labels, landmarks)
+    rules, p_d, p_f = SIM_PARAMS.rules(), SIM_PARAMS.detection_probability, SIM_PARAMS.clutter_probability
+    frames = np.flatnonzero(np.diff(stream.offsets)).tolist()
+    for j in range(len(landmarks)):
+        seen = set(log.frame[labels == j].tolist())
+        view = [in_view(poses[np.searchsorted(log.keys, f)], landmarks[j], rules) for f in frames]
+        if not seen:
+            continue
+        n_out = sum(v and f not in seen and not min(seen) <= f <= max(seen) for f, v in zip(frames, view))
+        n_view = sum(v or f in seen for f, v in zip(frames, view))
+        assert lam[j] == pytest.approx(n_out * np.log((1 - p_d) / (1 - p_f)) + np.log(n_view)), j
+    others = [j for j in range(len(landmarks)) if j != k and np.any(labels == j)]  # (a landmark never seen: none)
+    assert lam[k] <= 0 < lam[others].min()
+    dropped = sa.transient_outliers(log, poses, labels, landmarks)
+    assert np.all(dropped[labels == k] == sa.OUTLIER)
+    assert np.array_equal(dropped[labels != k], labels[labels != k])
+    lms, cov, _ = sa.fit_map(log, poses, labels, len(landmarks))
+    final = sa.without_transients(log, sa._State(poses, lms, cov, labels), settings)  # the smoother's last step
+    assert np.all(final.labels[labels == k] == sa.OUTLIER)
+    assert len(final.landmarks) == np.unique(labels[labels >= 0]).size - 1

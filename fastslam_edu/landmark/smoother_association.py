@@ -39,8 +39,13 @@ outlier at cost :math:`g`; the map then keeps a landmark only if its sightings, 
 :math:`\\sum_i \\beta_i (g - d^2_i) > \\lambda`, which needs more than one independent sighting's worth of evidence.
 :math:`\\beta_i = \\min(1, \\Delta t/\\tau)` is the filter's tempering
 (:func:`fastslam_edu.landmark.evidence.tempering_exponents`): a landmark seen 3 times a second counts about one
-sighting every :math:`\\tau` seconds, so another robot in view for a moment is not a landmark. Splitting one landmark
-into two pays :math:`\\lambda` and wins when the two fit their sightings better by more; merging two saves it.
+sighting every :math:`\\tau` seconds, so another robot in view for a moment is not a landmark. Another robot that stood
+somewhere for a while, then left, can be dropped from the final map (:func:`without_transients`,
+``transient_objects``, off by default): it is seen only between its first and last sighting and missed whenever in
+view before or after, which a static landmark explains worse than a *transient* object
+(:func:`~fastslam_edu.landmark.smoother_association_moves.static_against_transient`, a likelihood ratio with the
+BIC's charge for the transient's two extra parameters). Splitting one landmark into
+two pays :math:`\\lambda` and wins when the two fit their sightings better by more; merging two saves it.
 
 **Loop closures** (:func:`loop_closures`): two landmarks never seen in one frame and further apart than their
 covariances allow (:math:`d^2 > g`) may still be one landmark mapped twice, after the path drifted between the two
@@ -87,7 +92,8 @@ from fastslam_edu.landmark.smoother_association_model import (INFEASIBLE, OUTLIE
 from fastslam_edu.landmark.smoother_association_solve import levenberg_marquardt_schur
 from fastslam_edu.landmark.smoother_association_moves import (consistent_pairs, loop_candidates,
                                                               loop_closures, maximum_clique, merge_moves,
-                                                              prune_landmarks, split_moves, two_clusters)
+                                                              prune_landmarks, split_moves, transient_outliers,
+                                                              two_clusters)
 
 
 # --------------------------------------------------------------------------- (a) assignment, jointly per frame
@@ -515,7 +521,21 @@ def smooth_association(stream: EventStream, filter_result, params: FastSLAMParam
         state = alternate(log, *incremental_start(log, settings), settings)
         costs.append(state.cost)
         best = state if state.cost < best.cost else best
+    if settings.transient_objects:
+        best = without_transients(log, best, settings)
     return result_of(log, best, costs, time.perf_counter() - started)
+
+
+def without_transients(log: SightingLog, state: _State, settings: SmootherAssociationParams) -> _State:
+    """The solution ``state`` with every landmark more likely transient than static made outliers
+    (:func:`~fastslam_edu.landmark.smoother_association_moves.transient_outliers`) and solved once more ((b), (c):
+    :func:`_settle`); ``state`` itself if there is none."""
+    labels = transient_outliers(log, state.poses, state.labels, state.landmarks)
+    if np.array_equal(labels, state.labels):
+        return state
+    final = _settle(log, state.poses, labels, state.landmarks, settings)
+    final.rounds, final.loops = state.rounds + 1, state.loops
+    return final
 
 
 def result_of(log: SightingLog, state: _State, costs: list, seconds: float) -> SmootherAssociationResult:
@@ -536,4 +556,5 @@ __all__ = ["OUTLIER", "INFEASIBLE", "SightingLog", "prepare_log", "sighting_pose
            "frame_costs", "assign_frame", "assign_sightings", "compact", "solve_labelled", "two_clusters",
            "split_moves", "merge_moves", "prune_landmarks", "maximum_clique", "loop_candidates",
            "consistent_pairs", "loop_closures", "alternate", "grown_start", "reassigned_start", "starts_from_filter",
-           "motion_density", "predict_pose", "localise", "incremental_start", "smooth_association", "result_of"]
+           "motion_density", "predict_pose", "localise", "incremental_start", "smooth_association", "result_of",
+           "without_transients"]

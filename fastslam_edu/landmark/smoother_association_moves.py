@@ -102,15 +102,12 @@ def merge_moves(log: SightingLog, poses, labels, landmarks, cov, beta, *, settin
     return labels, merged
 
 
-def whole_log_existence_log_odds(log: SightingLog, poses, labels, landmarks) -> np.ndarray:
-    """The log odds (N,) that each landmark is real rather than clutter, as the filter's negative evidence
-    (:func:`fastslam_edu.landmark.landmark_existence.existence_log_odds`, over the whole log, unclamped):
-    :math:`n_{hit} \\log(p_D/p_F) + n_{miss} \\log((1-p_D)/(1-p_F))`, with :math:`n_{hit}` the camera frames that
-    see it and :math:`n_{miss}` those that see something but not it while it is in view (within the field of view and
-    the range of the filter's ``AssociationParams``, from the frame's pose). Another robot standing somewhere for a
-    while is seen there, and then missed whenever the camera looks there again."""
-    fov, r_min, r_max, log_hit, log_miss = log.camera
-    steps = np.flatnonzero(np.diff(log.stream.offsets))  # the camera frames (steps with sightings)
+def views_and_sightings(log: SightingLog, poses, labels, landmarks) -> tuple[np.ndarray, np.ndarray]:
+    """Two bool (F, N) matrices over the camera frames (steps with sightings) and the landmarks: ``view``, the landmark
+    in view from the frame's pose (within the field of view and the range of the filter's ``AssociationParams``), and
+    ``seen``, given a sighting of that frame."""
+    fov, r_min, r_max, _, _ = log.camera
+    steps = np.flatnonzero(np.diff(log.stream.offsets))
     x = poses[np.searchsorted(log.keys, steps)]
     N = len(landmarks)
     placed = np.isfinite(landmarks).all(axis=1)  # a landmark without a sighting used is nowhere: never in view
@@ -120,7 +117,42 @@ def whole_log_existence_log_odds(log: SightingLog, poses, labels, landmarks) -> 
     seen = np.zeros((len(steps), N), dtype=bool)
     ok = labels >= 0
     seen[np.searchsorted(steps, log.frame[ok]), labels[ok]] = True
+    return view, seen
+
+
+def whole_log_existence_log_odds(log: SightingLog, poses, labels, landmarks) -> np.ndarray:
+    """The log odds (N,) that each landmark is real rather than clutter, as the filter's negative evidence
+    (:func:`fastslam_edu.landmark.landmark_existence.existence_log_odds`, over the whole log, unclamped):
+    :math:`n_{hit} \\log(p_D/p_F) + n_{miss} \\log((1-p_D)/(1-p_F))`, with :math:`n_{hit}` the camera frames that
+    see it and :math:`n_{miss}` those that see something but not it while it is in view
+    (:func:`views_and_sightings`). Another robot standing somewhere for a while is seen there, and then missed
+    whenever the camera looks there again."""
+    _, _, _, log_hit, log_miss = log.camera
+    view, seen = views_and_sightings(log, poses, labels, landmarks)
     return seen.sum(axis=0) * log_hit + (view & ~seen).sum(axis=0) * log_miss
+
+
+def static_against_transient(log: SightingLog, poses, labels, landmarks) -> np.ndarray:
+    """The log likelihood ratio (N,) of each landmark being *static* (there all the log, seen with probability
+    :math:`p_D` whenever in view) against *transient* (there only from its first sighting to its last: another
+    robot standing still, then gone), with the transient's two extra parameters (when it came, when it left)
+    charged the BIC's :math:`\\tfrac{2}{2} \\ln n`:
+
+    .. math::
+
+        \\Lambda = n_{out} \\log\\frac{1 - p_D}{1 - p_F} + \\ln n_{view},
+
+    :math:`n_{out}` the frames that have it in view but before its first sighting or after its last (a miss that
+    the static landmark must explain by :math:`1 - p_D` and the transient one by :math:`1 - p_F`: it was not there),
+    :math:`n_{view}` the frames that have it in view or see it. Frames between its first and last sighting count
+    alike under both and cancel. :math:`\\Lambda \\le 0`: transient."""
+    _, _, _, _, log_miss = log.camera
+    view, seen = views_and_sightings(log, poses, labels, landmarks)
+    frame = np.arange(len(view))[:, None]
+    hit = np.where(seen, frame, -1)
+    first = np.where(seen, frame, len(view)).min(axis=0)
+    outside = view & ~seen & ((frame < first[None]) | (frame > hit.max(axis=0)[None]))
+    return outside.sum(axis=0) * log_miss + np.log(np.maximum((view | seen).sum(axis=0), 1))
 
 
 def prune_landmarks(log: SightingLog, poses, labels, landmarks, d2, beta, *, settings: SmootherAssociationParams):
@@ -137,6 +169,14 @@ def prune_landmarks(log: SightingLog, poses, labels, landmarks, d2, beta, *, set
             labels[i] = OUTLIER
             pruned += 1
     return labels, pruned
+
+
+def transient_outliers(log: SightingLog, poses, labels, landmarks) -> np.ndarray:
+    """``labels`` with the sightings of every landmark more likely transient than static
+    (:func:`static_against_transient` :math:`\\le 0`) made outliers: the map reports static landmarks only."""
+    static = static_against_transient(log, poses, labels, landmarks)
+    transient = np.flatnonzero(static <= 0)
+    return np.where(np.isin(labels, transient), OUTLIER, labels)
 
 
 # --------------------------------------------------------------------------- loop closures between groups
@@ -234,5 +274,6 @@ def loop_closures(log: SightingLog, labels, landmarks, cov, settings: SmootherAs
     return labels
 
 
-__all__ = ["two_clusters", "split_moves", "merge_moves", "whole_log_existence_log_odds", "prune_landmarks",
+__all__ = ["two_clusters", "split_moves", "merge_moves", "views_and_sightings", "whole_log_existence_log_odds",
+           "static_against_transient", "prune_landmarks", "transient_outliers",
            "maximum_clique", "loop_candidates", "consistent_pairs", "loop_closures"]
