@@ -73,8 +73,8 @@ def in_view(pose, mu, rules):
 
 @njit(cache=True, _nrt=False)
 def in_view_along(x, y, cos_theta, sin_theta, cos_fov, mu, rules):
-    """:func:`in_view` from the position ``(x, y)`` [m] with the heading's unit vector :math:`(\cos\theta,
-    \sin\theta)` and :math:`\cos\phi_{\max}` given, for a loop over a particle's landmarks that computes them
+    """:func:`in_view` from the position ``(x, y)`` [m] with the heading's unit vector :math:`(\\cos\\theta,
+    \\sin\\theta)` and :math:`\\cos\\phi_{\\max}` given, for a loop over a particle's landmarks that computes them
     once (:func:`negative_evidence`)."""
     dx, dy = mu[0] - x, mu[1] - y
     r = math.sqrt(dx * dx + dy * dy)
