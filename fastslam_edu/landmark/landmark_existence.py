@@ -170,5 +170,5 @@ def retire_landmarks(P, m, rules, renames, n_renames, q):
         remove_landmark(P, m, k)
 
 
-__all__ = ["add_landmark", "remove_landmark", "in_view", "in_view_along", "existence_log_odds", "negative_evidence", "heir_of",
-           "RENAME_INSTANT", "RENAME_PARTICLE", "RENAME_HEIR", "RENAME_TAKEN", "retire_landmarks"]
+__all__ = ["add_landmark", "remove_landmark", "in_view", "in_view_along", "existence_log_odds", "negative_evidence",
+           "heir_of", "RENAME_INSTANT", "RENAME_PARTICLE", "RENAME_HEIR", "RENAME_TAKEN", "retire_landmarks"]

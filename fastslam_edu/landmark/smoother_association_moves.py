@@ -135,8 +135,8 @@ def whole_log_existence_log_odds(log: SightingLog, poses, labels, landmarks) -> 
 def static_against_transient(log: SightingLog, poses, labels, landmarks) -> np.ndarray:
     """The log likelihood ratio (N,) of each landmark being *static* (there all the log, seen with probability
     :math:`p_D` whenever in view) against *transient* (there only from its first sighting to its last: another
-    robot standing still, then gone), with the transient's two extra parameters (when it came, when it left)
-    charged the BIC's :math:`\\tfrac{2}{2} \\ln n`:
+    robot standing still, then gone), with the transient's :math:`k = 2` extra parameters (when it came, when it
+    left) charged the BIC's :math:`\\tfrac{k}{2} \\ln n = \\ln n`:
 
     .. math::
 
@@ -149,9 +149,9 @@ def static_against_transient(log: SightingLog, poses, labels, landmarks) -> np.n
     _, _, _, _, log_miss = log.camera
     view, seen = views_and_sightings(log, poses, labels, landmarks)
     frame = np.arange(len(view))[:, None]
-    hit = np.where(seen, frame, -1)
-    first = np.where(seen, frame, len(view)).min(axis=0)
-    outside = view & ~seen & ((frame < first[None]) | (frame > hit.max(axis=0)[None]))
+    first = np.where(seen, frame, len(view)).min(axis=0)  # (a landmark never seen: no frame is inside)
+    last = np.where(seen, frame, -1).max(axis=0)
+    outside = view & ~seen & ((frame < first) | (frame > last))
     return outside.sum(axis=0) * log_miss + np.log(np.maximum((view | seen).sum(axis=0), 1))
 
 
