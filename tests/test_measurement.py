@@ -7,11 +7,14 @@ import pytest
 
 from fastslam_edu.core.measurement import (
     innovation,
+    innovation_unchecked,
     jacobian_inverse,
     jacobian_landmark,
+    jacobian_landmark_unchecked,
     jacobian_pose,
     landmark_from_measurement,
     range_bearing,
+    range_bearing_unchecked,
 )
 
 N = 300
@@ -242,3 +245,19 @@ def test_jacobian_inverse_refuses_negative_range():
     # at r = 0 the closed form is [[cos, 0], [sin, 0]] (column φ scales with r)
     np.testing.assert_allclose(jacobian_inverse([0.0, 0.0, 0.3], [0.0, 0.2]),
                                [[np.cos(0.5), 0.0], [np.sin(0.5), 0.0]], atol=1e-15)
+
+
+def test_unchecked_forms_give_the_same_numbers_as_the_checked_ones():
+    """The inner-loop forms skip the checks, not the arithmetic: equal arrays, bit for bit, under broadcasting
+    (every pose against every landmark, and one pose against one landmark)."""
+    rng = np.random.default_rng(9)
+    x, m = random_poses_landmarks(rng, 12)
+    z = rng.uniform(0.5, 5.0, (12, 1, 2))
+    X, L = x[:, None, :], m[None, :6]
+    for checked, unchecked, a, b in ((range_bearing, range_bearing_unchecked, X, L),
+                                     (jacobian_landmark, jacobian_landmark_unchecked, X, L),
+                                     (innovation, innovation_unchecked, z, range_bearing(X, L))):
+        out = unchecked(a, b)
+        assert out.shape == checked(a, b).shape
+        np.testing.assert_array_equal(out, checked(a, b))
+        np.testing.assert_array_equal(unchecked(a[3, 0], b[0, 2]), checked(a[3, 0], b[0, 2]))

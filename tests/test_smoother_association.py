@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from fastslam_edu.core.se2 import compose, relative
 from fastslam_edu.datasets.events import event_stream
@@ -16,6 +17,7 @@ from fastslam_edu.evaluation.smoother_bounds import smoother_bounds, true_labels
 from fastslam_edu.landmark import smoother_association as sa
 from fastslam_edu.landmark.association import AssociationParams, run_unknown
 from fastslam_edu.landmark.fastslam import FastSLAMParams
+from fastslam_edu.landmark.smoother_association_solve import banded_upper, schur_step
 
 SIM_FILTER = FastSLAMParams(n_particles=30, measurement_cov=np.diag([0.05**2, 0.02**2]), range_std_slope=0.0)
 SIM_PARAMS = AssociationParams(filter=SIM_FILTER, max_range=5.0, fov=1.0)
@@ -293,3 +295,35 @@ def test_a_landmark_seen_only_for_a_while_is_transient(sim):
     final = sa.without_transients(log, sa._State(poses, lms, cov, labels), settings)  # the smoother's last step
     assert np.all(final.labels[labels == k] == sa.OUTLIER)
     assert len(final.landmarks) == np.unique(labels[labels >= 0]).size - 1
+
+
+def test_gate_is_the_chi2_quantile_with_two_degrees_of_freedom():
+    from scipy.stats import chi2
+    for p in (0.9, 0.99, 0.999, 1.0 - 1e-6):
+        g = sa.SmootherAssociationParams(gate_probability=p).gate
+        assert g == pytest.approx(chi2.ppf(p, 2), rel=1e-12)
+
+
+def test_schur_step_solves_the_normal_equations():
+    """Poses first, block tridiagonal (3 x 3 blocks), then landmarks: the same step as a dense solve of the whole
+    system; a pose block with an entry outside the band is left to the general solver (None)."""
+    rng = np.random.default_rng(3)
+    n_poses, n_lm = 40, 5
+    P, V = 3 * n_poses, 3 * n_poses + 2 * n_lm
+    J = np.zeros((3 * (n_poses - 1) + 3 + 60, V))
+    J[:3, :3] = np.eye(3)
+    for k in range(n_poses - 1):  # odometry: keyframe k against k + 1
+        J[3 + 3 * k:6 + 3 * k, 3 * k:3 * k + 6] = rng.normal(size=(3, 6))
+    for r in range(3 * n_poses, len(J)):  # sightings: one pose, one landmark
+        k, j = rng.integers(n_poses), rng.integers(n_lm)
+        J[r, 3 * k:3 * k + 3], J[r, P + 2 * j:P + 2 * j + 2] = rng.normal(size=3), rng.normal(size=2)
+    A = J.T @ J + 1e-3 * np.eye(V)
+    g = rng.normal(size=V)
+    np.testing.assert_allclose(schur_step(sp.csr_matrix(A), g, P), -np.linalg.solve(A, g), rtol=1e-8, atol=1e-10)
+    ab = banded_upper(sp.csr_matrix(A[:P, :P]))
+    for i in range(P):
+        for j in range(i, min(P, i + 6)):
+            assert ab[5 + i - j, j] == A[i, j]
+    far = A.copy()
+    far[0, 9] = far[9, 0] = 0.1
+    assert schur_step(sp.csr_matrix(far), g, P) is None

@@ -79,8 +79,9 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from fastslam_edu.core.angles import wrap_angle
-from fastslam_edu.core.measurement import (innovation, jacobian_landmark, jacobian_pose, landmark_from_measurement,
-                                           range_bearing)
+from fastslam_edu.core.measurement import (innovation, innovation_unchecked, jacobian_landmark,
+                                           jacobian_landmark_unchecked, jacobian_pose, landmark_from_measurement,
+                                           range_bearing, range_bearing_unchecked)
 from fastslam_edu.core.se2 import compose, relative
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.fastslam import FastSLAMParams
@@ -106,15 +107,16 @@ def mahalanobis_d2(x, z, R, landmarks, cov, pose_cov=None):
     s, N = len(z), len(landmarks)
     if N == 0:
         return np.zeros((s, 0))
-    X = np.broadcast_to(x[:, None, :], (s, N, 3))
-    L = np.broadcast_to(landmarks[None], (s, N, 2))
-    nu = innovation(z[:, None, :], range_bearing(X, L))
-    H = jacobian_landmark(X.reshape(-1, 3), L.reshape(-1, 2)).reshape(s, N, 2, 2)
+    X, L = x[:, None, :], landmarks[None]  # (s, 1, 3) against (1, N, 2)
+    nu = innovation_unchecked(z[:, None, :], range_bearing_unchecked(X, L))
+    H = jacobian_landmark_unchecked(X, L)
     Q = R[:, None] + H @ cov[None] @ np.swapaxes(H, 2, 3)
     if pose_cov is not None:
-        Hx = jacobian_pose(X.reshape(-1, 3), L.reshape(-1, 2)).reshape(s, N, 2, 3)
+        Hx = jacobian_pose(np.broadcast_to(X, (s, N, 3)), np.broadcast_to(L, (s, N, 2)))
         Q = Q + Hx @ pose_cov[:, None] @ np.swapaxes(Hx, 2, 3)
-    return np.einsum("sni,snij,snj->sn", nu, np.linalg.inv(Q), nu)
+    a, b = nu[..., 0], nu[..., 1]  # nu^T Q^-1 nu with the 2 x 2 inverse in closed form
+    det = Q[..., 0, 0] * Q[..., 1, 1] - Q[..., 0, 1] * Q[..., 1, 0]
+    return (Q[..., 1, 1] * a * a - (Q[..., 0, 1] + Q[..., 1, 0]) * a * b + Q[..., 0, 0] * b * b) / det
 
 
 def frame_costs(d2: np.ndarray, gate: float, penalty: float) -> np.ndarray:
@@ -159,18 +161,19 @@ def assign_sightings(log: SightingLog, poses, landmarks, cov, settings: Smoother
     none).
     Returns ``(labels (n,), landmarks (N', 2), cov (N', 2, 2))``, N' >= N.
     """
-    lms, cov = [np.asarray(l, dtype=float) for l in landmarks], [np.asarray(c, dtype=float) for c in cov]
-    n_old = len(lms)
+    old_l, old_c = np.asarray(landmarks, dtype=float).reshape(-1, 2), np.asarray(cov, dtype=float).reshape(-1, 2, 2)
+    n_old = len(old_l)
     xs = sighting_poses(log, poses)
     z = log.stream.z
+    new_l, new_c, n_new = np.empty((len(z), 2)), np.empty((len(z), 2, 2)), 0  # the landmarks this pass starts
     labels = np.full(len(z), OUTLIER, dtype=np.int64)
-    d2_old = mahalanobis_d2(xs, z, log.R, np.array(lms).reshape(-1, 2), np.array(cov).reshape(-1, 2, 2), pose_cov)
+    d2_old = mahalanobis_d2(xs, z, log.R, old_l, old_c, pose_cov)
     gate, penalty = settings.gate, settings.penalty
     for k in frame_order(log):
         a, b = log.stream.offsets[k], log.stream.offsets[k + 1]
         d2 = d2_old[a:b]
-        if len(lms) > n_old:
-            fresh = mahalanobis_d2(xs[a:b], z[a:b], log.R[a:b], np.array(lms[n_old:]), np.array(cov[n_old:]),
+        if n_new:
+            fresh = mahalanobis_d2(xs[a:b], z[a:b], log.R[a:b], new_l[:n_new], new_c[:n_new],
                                    None if pose_cov is None else pose_cov[a:b])
             d2 = np.concatenate([d2, fresh], axis=1)
         chosen = assign_frame(d2, gate, penalty)
@@ -178,22 +181,22 @@ def assign_sightings(log: SightingLog, poses, landmarks, cov, settings: Smoother
             if j == d2.shape[1]:  # a new landmark, at this sighting
                 l = landmark_from_measurement(xs[i], z[i])
                 G = np.linalg.inv(jacobian_landmark(xs[i][None], l[None])[0])
-                lms.append(l)
-                cov.append(G @ log.R[i] @ G.T)
-                labels[i] = len(lms) - 1
-            elif 0 <= j < len(lms):
+                new_l[n_new], new_c[n_new] = l, G @ log.R[i] @ G.T
+                n_new += 1
+                labels[i] = n_old + n_new - 1
+            elif 0 <= j:
                 labels[i] = j
                 if j >= n_old:  # a landmark of this pass: EKF update at the fixed pose
-                    lms[j], cov[j] = _ekf(xs[i], z[i], log.R[i], lms[j], cov[j])
-    return labels, np.array(lms).reshape(-1, 2), np.array(cov).reshape(-1, 2, 2)
+                    new_l[j - n_old], new_c[j - n_old] = _ekf(xs[i], z[i], log.R[i], new_l[j - n_old], new_c[j - n_old])
+    return labels, np.concatenate([old_l, new_l[:n_new]]), np.concatenate([old_c, new_c[:n_new]])
 
 
 def _ekf(x, z, R, l, P):
     """One EKF update of landmark ``l`` (2,), covariance ``P`` by sighting ``z`` from the fixed pose ``x``."""
-    H = jacobian_landmark(x[None], l[None])[0]
+    H = jacobian_landmark_unchecked(x, l)
     S = H @ P @ H.T + R
     K = P @ H.T @ np.linalg.inv(S)
-    nu = innovation(z[None], range_bearing(x[None], l[None]))[0]
+    nu = innovation_unchecked(z, range_bearing_unchecked(x, l))
     return l + K @ nu, (np.eye(2) - K @ H) @ P
 
 

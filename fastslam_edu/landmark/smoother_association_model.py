@@ -9,9 +9,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
-from fastslam_edu.core.measurement import innovation, jacobian_landmark, landmark_from_measurement, range_bearing
+from fastslam_edu.core.measurement import (innovation_unchecked, jacobian_landmark_unchecked, landmark_from_measurement,
+                                           range_bearing_unchecked)
 from fastslam_edu.core.params import Params
 from fastslam_edu.datasets.log import EventStream
 from fastslam_edu.landmark.association import AssociationParams
@@ -102,8 +102,9 @@ class SmootherAssociationParams(Params):
 
     @property
     def gate(self) -> float:
-        """:math:`g = \\chi^2_2(p)`: the gate, the cost of an outlier."""
-        return float(chi2.ppf(self.gate_probability, 2))
+        """:math:`g = \\chi^2_2(p) = -2 \\ln(1 - p)`: the gate, the cost of an outlier (the :math:`\\chi^2` with two
+        degrees of freedom is the exponential distribution of mean 2)."""
+        return -2.0 * math.log1p(-self.gate_probability)
 
     @property
     def penalty(self) -> float:
@@ -218,15 +219,15 @@ def fit_landmark(poses, z, Rinv, start=None, iterations: int = 5):
     l = np.mean(landmark_from_measurement(poses, z), axis=0) if start is None else np.asarray(start, dtype=float)
     info = np.eye(2)
     for _ in range(iterations):
-        nu = innovation(z, range_bearing(poses, np.broadcast_to(l, (len(z), 2))))
-        H = jacobian_landmark(poses, np.broadcast_to(l, (len(z), 2)))
+        nu = innovation_unchecked(z, range_bearing_unchecked(poses, l))
+        H = jacobian_landmark_unchecked(poses, l)
         HtRi = np.swapaxes(H, 1, 2) @ Rinv
         info = np.sum(HtRi @ H, axis=0) + 1e-9 * np.eye(2)
         step = np.linalg.solve(info, np.einsum("nij,nj->i", HtRi, nu))
         l = l + step
         if np.max(np.abs(step)) < 1e-6:
             break
-    nu = innovation(z, range_bearing(poses, np.broadcast_to(l, (len(z), 2))))
+    nu = innovation_unchecked(z, range_bearing_unchecked(poses, l))
     d2 = np.einsum("ni,nij,nj->n", nu, Rinv, nu)
     return l, np.linalg.inv(info), d2
 

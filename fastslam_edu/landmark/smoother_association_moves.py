@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from fastslam_edu.core.measurement import innovation, landmark_from_measurement, range_bearing
+from fastslam_edu.core.measurement import (innovation_unchecked, landmark_from_measurement, range_bearing,
+                                           range_bearing_unchecked)
 from fastslam_edu.landmark.smoother_association_model import (OUTLIER, SightingLog, SmootherAssociationParams,
                                                               fit_landmark, frames_of, sighting_poses)
 
@@ -30,7 +31,7 @@ def two_clusters(poses, z, Rinv, iterations: int = 10) -> np.ndarray:
         d2 = []
         for part in (~side, side):
             l = fit_landmark(poses[part], z[part], Rinv[part])[0]
-            nu = innovation(z, range_bearing(poses, np.broadcast_to(l, (len(z), 2))))
+            nu = innovation_unchecked(z, range_bearing_unchecked(poses, l))
             d2.append(np.einsum("ni,nij,nj->n", nu, Rinv, nu))
         new = d2[1] < d2[0]
         if np.array_equal(new, side):

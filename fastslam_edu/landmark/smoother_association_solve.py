@@ -10,12 +10,20 @@ landmarks' Schur complement
     S = A_{ll} - A_{pl}^\\top A_{pp}^{-1} A_{pl}, \\qquad
     S\\,\\delta_l = -g_l + A_{pl}^\\top A_{pp}^{-1} g_p, \\qquad A_{pp}\\,\\delta_p = -g_p - A_{pl}\\,\\delta_l,
 
-:math:`A_{pp}^{-1}` is applied by a banded Cholesky factor (bandwidth 5: two 3 × 3 blocks) to :math:`1 + 2L`
-right-hand sides, and :math:`S` is a small dense (2L, 2L) matrix: linear in the number of keyframes, where a general
-sparse LU of the whole matrix fills the landmarks' rows. The association solves the problem many times (every
-round of every start), so this step sets its time. Same steps, same stopping rule and same Huber weights as
-:func:`fastslam_edu.landmark.smoother.levenberg_marquardt` (its signature: usable as ``solve_with_gate``'s
-``minimise``); a problem with calibration columns, or a pose block that is not banded, goes to that function.
+:math:`A_{pp} = U^\\top U` is factored once by a banded Cholesky (bandwidth 5: two 3 × 3 blocks), and one
+triangular solve with :math:`U^\\top` on :math:`1 + 2L` right-hand sides gives all of it,
+
+.. math::
+
+    W = U^{-\\top} A_{pl}, \\quad y = U^{-\\top} g_p: \\qquad S = A_{ll} - W^\\top W, \\quad
+    S\\,\\delta_l = -g_l + W^\\top y, \\quad \\delta_p = -U^{-1} (y + W \\delta_l),
+
+since :math:`A_{pl}^\\top A_{pp}^{-1} A_{pl} = W^\\top W`. :math:`S` is a small dense (2L, 2L) matrix: linear in the
+number of keyframes, where a general sparse LU of the whole matrix fills the landmarks' rows. The association solves
+the problem many times (every round of every start), so this step sets its time. Same steps, same stopping rule
+and same Huber weights as :func:`fastslam_edu.landmark.smoother.levenberg_marquardt` (its signature: usable as
+``solve_with_gate``'s ``minimise``); a problem with calibration columns, or a pose block that is not banded, goes to
+that function.
 """
 
 from __future__ import annotations
@@ -24,7 +32,8 @@ from functools import partial
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
+from scipy.linalg import LinAlgError, cholesky_banded
+from scipy.linalg.lapack import dtbtrs
 
 from fastslam_edu.landmark.smoother import levenberg_marquardt
 
@@ -39,10 +48,10 @@ def banded_upper(A_pp: sp.spmatrix, u: int = POSE_BANDWIDTH) -> np.ndarray | Non
     off = C.col - C.row
     if np.any(np.abs(off) > u):
         return None
-    ab = np.zeros((u + 1, A_pp.shape[0]))
     up = off >= 0
-    np.add.at(ab, (u - off[up], C.col[up]), C.data[up])
-    return ab
+    P = A_pp.shape[0]
+    flat = np.bincount((u - off[up]) * P + C.col[up], weights=C.data[up], minlength=(u + 1) * P)
+    return flat.reshape(u + 1, P)
 
 
 def schur_step(A: sp.spmatrix, g: np.ndarray, n_pose_vars: int) -> np.ndarray | None:
@@ -59,12 +68,14 @@ def schur_step(A: sp.spmatrix, g: np.ndarray, n_pose_vars: int) -> np.ndarray | 
     except LinAlgError:
         return None
     A_pl = A[:P, P:]  # sparse: a landmark meets only the poses that see it
-    solved = cho_solve_banded((factor, False), np.column_stack([g[:P], A_pl.toarray()]))  # A_pp^-1 [g_p, A_pl]
-    Ainv_g, Ainv_pl = solved[:, 0], solved[:, 1:]
-    S = A[P:, P:].toarray() - A_pl.T @ Ainv_pl
-    d_l = np.linalg.solve(S, -(g[P:] - A_pl.T @ Ainv_g)) if S.shape[0] else np.zeros(0)
-    d_p = -(Ainv_g + Ainv_pl @ d_l)
-    return np.concatenate([d_p, d_l])
+    B = np.empty((P, 1 + A_pl.shape[1]), order="F")
+    B[:, 0], B[:, 1:] = g[:P], A_pl.toarray()
+    Y, _ = dtbtrs(factor, B, uplo="U", trans="T", overwrite_b=1)  # U^-T [g_p, A_pl]
+    y, W = Y[:, 0], Y[:, 1:]
+    S = A[P:, P:].toarray() - W.T @ W
+    d_l = np.linalg.solve(S, -(g[P:] - W.T @ y)) if S.shape[0] else np.zeros(0)
+    d_p, _ = dtbtrs(factor, y + W @ d_l, uplo="U")  # U^-1 (y + W d_l)
+    return np.concatenate([-d_p, d_l])
 
 
 def levenberg_marquardt_schur(problem, v, active, *, huber, max_iterations, tol):
