@@ -220,7 +220,7 @@ def main(argv=None) -> int:
                          "the landmarks more likely transient than static")
     ap.add_argument("--out", type=Path, default=None,
                     help="JSON file (default results/association_mrclam.json; association_mrclam_greedy.json, "
-                         "..._deferred, ..._split, ..._gapK, ..._transient with those options)")
+                         "..._deferred, ..._split, ..._gapK, ..._transient, ..._runsK with those options)")
     args = ap.parse_args(argv)
     if args.smoother_runs < 1:
         ap.error(f"--smoother-runs must be >= 1, got {args.smoother_runs}")
@@ -230,7 +230,8 @@ def main(argv=None) -> int:
     params = AssociationParams(association="greedy" if args.greedy else "joint", deferred=args.deferred,
                                split_tentative=args.split, gap_window_sightings=args.gap_window)
     name = ("association_mrclam" + "_greedy" * args.greedy + "_deferred" * args.deferred + "_split" * args.split
-            + f"_gap{args.gap_window}" * (args.gap_window > 0) + "_transient" * args.transient_objects + ".json")
+            + f"_gap{args.gap_window}" * (args.gap_window > 0) + "_transient" * args.transient_objects
+            + f"_runs{args.smoother_runs}" * (args.smoother and args.smoother_runs > 1) + ".json")
     args.out = args.out or Path(__file__).parent / "results" / name
     start = time.perf_counter()
     try:
