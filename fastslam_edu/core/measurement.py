@@ -22,6 +22,11 @@ landmark update) and the Jacobian of ``h⁻¹`` with respect to the *measurement
 Every function is vectorised: ``x`` has shape ``(..., 3)``, ``m`` and ``z`` have
 shape ``(..., 2)`` and the leading dimensions broadcast against each other
 (e.g. poses ``(M, 1, 3)`` of ``M`` particles against landmarks ``(M, N, 2)``).
+
+Each function checks its input (finite numbers, the right shapes, no landmark on the robot) and names the bad
+entry. :func:`range_bearing`, :func:`jacobian_landmark` and :func:`innovation` also come without the checks
+(``*_unchecked``: the same arithmetic, which the checked forms call) for loops that call them thousands of times
+on arrays the package built itself, such as the smoother's data association.
 """
 
 from __future__ import annotations
