@@ -7,8 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from fastslam_edu.core.measurement import (innovation_unchecked, landmark_from_measurement, range_bearing,
-                                           range_bearing_unchecked)
+from fastslam_edu.core.measurement import innovation_unchecked, landmark_from_measurement, range_bearing_unchecked
 from fastslam_edu.landmark.smoother_association_model import (OUTLIER, SightingLog, SmootherAssociationParams,
                                                               fit_landmark, frames_of, sighting_poses)
 
@@ -113,7 +112,7 @@ def views_and_sightings(log: SightingLog, poses, labels, landmarks) -> tuple[np.
     N = len(landmarks)
     placed = np.isfinite(landmarks).all(axis=1)  # a landmark without a sighting used is nowhere: never in view
     landmarks = np.where(placed[:, None], landmarks, 1e6)
-    z_hat = range_bearing(np.broadcast_to(x[:, None], (len(x), N, 3)), np.broadcast_to(landmarks[None], (len(x), N, 2)))
+    z_hat = range_bearing_unchecked(x[:, None], landmarks[None])  # (F, N, 2): every frame against every landmark
     view = placed[None] & (z_hat[..., 0] >= r_min) & (z_hat[..., 0] <= r_max) & (np.abs(z_hat[..., 1]) <= fov)
     seen = np.zeros((len(steps), N), dtype=bool)
     ok = labels >= 0
