@@ -449,7 +449,8 @@ def test_particles_right_counts_by_weight():
     P.sigma[:] = np.eye(2) * 0.05**2
     P.n[:] = 3
     z = range_bearing(np.zeros(3), landmarks[:1])
-    right = score.particles_right(P, z, R[None], 1.0, np.array([0]), np.array([0.7, 0.3]), RULES)
+    right = score.particles_right(P, z, R[None], 1.0, np.array([0]), np.array([0.7, 0.3]), RULES,
+                                  association_workspace(1, 3))
     assert right.tolist() == [pytest.approx(0.7)]
 
 

@@ -215,15 +215,15 @@ def association_accuracy_ceiling(t, poses, sighting_t, z, R, landmarks, true_ind
 
 
 @njit(cache=True)
-def particles_right(P, z, R, t, truth, w, rules):
+def particles_right(P, z, R, t, truth, w, rules, work):
     """For each sighting ``z`` (n, 2) of one instant at time ``t``, the weight ``w`` (M,) of the particles of ``P``
     (:class:`~fastslam_edu.landmark.association_params.MapParticles`) whose association
-    (:func:`~fastslam_edu.landmark.association.choose_landmarks`, with ``rules``) gives it its true landmark
-    ``truth`` (n,) (a slot of ``P``): (n,). The pose covariance the rule adds is the filter's:
+    (:func:`~fastslam_edu.landmark.association.choose_landmarks`, with ``rules``, decided in ``work``: an
+    :func:`~fastslam_edu.landmark.association_params.association_workspace` for n sightings) gives it its true
+    landmark ``truth`` (n,) (a slot of ``P``): (n,). The pose covariance the rule adds is the filter's:
     ``rules.pose_scale`` times the particles' (:func:`~fastslam_edu.landmark.fastslam_step.pose_covariance`)."""
     right = np.zeros(z.shape[0])
     cloud = pose_covariance(P.poses, w) * rules.pose_scale
-    work = association_workspace(z.shape[0], P.mu.shape[1])
     for m in range(P.poses.shape[0]):
         choose_landmarks_kernel(P, m, P.poses[m], (z, R, t), cloud, rules, work)
         for i in range(z.shape[0]):
@@ -280,7 +280,8 @@ class OnlineCeiling(Hook):
         P.evidence[:], P.last_t[:] = self.rules.n_confirm, run.last_seen
         w = np.asarray(run.w, dtype=float)
         right = particles_right(P, np.ascontiguousarray(stream.z[a:b], dtype=float),
-                                np.ascontiguousarray(run.R[a:b]), float(stream.t[e]), truth, w / w.sum(), self.rules)
+                                np.ascontiguousarray(run.R[a:b]), float(stream.t[e]), truth, w / w.sum(), self.rules,
+                                association_workspace(b - a, N))
         self.right += float(right[mapped].sum())
         self.scored += int(mapped.sum())
 

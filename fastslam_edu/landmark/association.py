@@ -198,7 +198,7 @@ def most_sightings(offsets):
 
 
 @njit(cache=True)
-def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start, win):
+def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start, win, work):
     """Steps 1–4 over ``segments`` (S, 2) with unknown correspondences.
 
     ``L``: the stream (:class:`fastslam_edu.landmark.fastslam_step.Log`; its ``j`` is never read), ``s``: the
@@ -207,12 +207,13 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start, win):
     buffer for FastSLAM 2.0 (as :func:`fastslam_edu.landmark.fastslam_step.run_segments`: the proposal's
     kernels compiled only for a FastSLAM 2.0 run); ``win``: the frames held after a gap
     (:class:`~fastslam_edu.landmark.gap_window.GapWindow`, step 6), kept from one call to the next; None without
-    (its kernels then not compiled).
+    (its kernels then not compiled); ``work``: the
+    :class:`~fastslam_edu.landmark.association_params.AssociationWorkspace` every decision is made in
+    (:func:`~fastslam_edu.landmark.association_params.association_workspace` for the stream's largest instant).
     """
     M = P.poses.shape[0]
     w = out.w
     normals = segment_normals(segments, s.n_draws, M)
-    work = association_workspace(most_sightings(L.offsets), P.mu.shape[1])
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
         a, b = L.offsets[last], L.offsets[last + 1]
@@ -226,7 +227,8 @@ def run_unknown_segments(P, L, s, rules, segments, rng, out, x_start, win):
                 before = out.next_ident[0]
                 decide_held_frames(P, L, rules, win, work, out)
                 out.totals[LANDMARKS_CREATED] += out.next_ident[0] - before
-        if not move_through_segment(P.poses, L, s, segments[r], rng, out, normals, x_start):
+        if not move_through_segment(P.poses, L, s, segments[r], rng, (out.w, out.pose_mean, out.pose_best), normals,
+                                    x_start):
             continue
         q = out.totals[INSTANTS_DONE]
         before = out.next_ident[0]
@@ -344,15 +346,15 @@ def run_unknown(stream: EventStream, params: AssociationParams = AssociationPara
     x_start = np.empty((M, 3)) if fp.proposal == "fastslam2" else None
     win = (gap_window(M, params.max_landmarks, params.gap_window_sightings, most_sightings(offsets))
            if params.gap_window_sightings > 0 else None)
-    done = 0
+    work, done = association_workspace(most_sightings(offsets), params.max_landmarks), 0
     with RunTimer() as timer:  # filter_seconds without the compilation of the kernels (compile_seconds)
         while done < len(segments):
-            done += run_unknown_segments(P, log, settings, rules, segments[done:], rng, out, x_start, win)
+            done += run_unknown_segments(P, log, settings, rules, segments[done:], rng, out, x_start, win, work)
             if done < len(segments) or frames_held(win) > 0:  # the record of hand-overs may fill up: more room
                 out = with_room_for_renames(out, frames_held(win) * M * params.max_landmarks)
         if frames_held(win) > 0:  # the log ends inside a window
             before = int(out.next_ident[0])
-            decide_held_frames(P, log, rules, win, association_workspace(most_sightings(offsets), params.max_landmarks), out)
+            decide_held_frames(P, log, rules, win, work, out)
             out.totals[LANDMARKS_CREATED] += int(out.next_ident[0]) - before
     w, pose_mean, pose_best, totals = out.w, out.pose_mean, out.pose_best, out.totals
     assoc, parents, instant_of = out.assoc, out.parents, out.instant_of

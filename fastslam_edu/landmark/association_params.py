@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from fastslam_edu.core.params import Params
 from fastslam_edu.landmark.fastslam import FastSLAMParams
@@ -254,7 +253,7 @@ class AssociationWorkspace(NamedTuple):
     the slot each sighting goes to (-1: new); chosen (n,): the log-likelihood it was decided by; taken (N,): the
     landmarks a sighting of the instant went to; split (n,): the sightings whose landmark splits
     (:func:`~fastslam_edu.landmark.association.splitting_sightings`); info (n, N, ``N_PAIR_SLOTS``), p0 (n,),
-    choice (n,), used (N,), total (``N_PAIR_SLOTS``,), excess and common (3, 3), group (n,): joint compatibility's
+    choice (n,), partial (n + 1, ``N_PAIR_SLOTS``), optimistic (n + 1,), excess and common (3, 3), group (n,): joint compatibility's
     (:mod:`fastslam_edu.landmark.joint_compatibility`).
     """
 
@@ -266,21 +265,22 @@ class AssociationWorkspace(NamedTuple):
     info: np.ndarray
     p0: np.ndarray
     choice: np.ndarray
-    used: np.ndarray
-    total: np.ndarray
+    partial: np.ndarray
+    optimistic: np.ndarray
     excess: np.ndarray
     common: np.ndarray
     group: np.ndarray
 
 
-@njit(cache=True)
 def association_workspace(n, N):
     """An :class:`AssociationWorkspace` for instants of at most ``n`` sightings and maps of at most ``N``
-    landmarks."""
+    landmarks (made in Python, once per run or decision: compiled, its thirteen arrays of three types cost more
+    than a second of compilation on a cold start)."""
+    n, N = int(n), int(N)
     return AssociationWorkspace(np.full((n, N), -math.inf), np.full(n, -1, dtype=np.int64), np.full(n, -math.inf),
                                 np.zeros(N, dtype=np.bool_), np.zeros(n, dtype=np.bool_),
                                 np.zeros((n, N, N_PAIR_SLOTS)), np.zeros(n), np.full(n, -1, dtype=np.int64),
-                                np.full(N, -1, dtype=np.int64), np.zeros(N_PAIR_SLOTS), np.zeros((3, 3)),
+                                np.zeros((n + 1, N_PAIR_SLOTS)), np.zeros(n + 1), np.zeros((3, 3)),
                                 np.zeros((3, 3)), np.zeros(n, dtype=np.int64))
 
 

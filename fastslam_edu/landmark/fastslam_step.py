@@ -473,8 +473,10 @@ def segment_normals(segments, n_draws, m):
 @njit(cache=True)
 def move_through_segment(poses, L, s, segment, rng, out, normals, x_start):
     """Line 4 for every particle (``poses`` (M, 3)) through the steps ``segment = (first, last)`` of the stream
-    ``L``, recording the estimates of its steps in ``out.pose_mean``, ``out.pose_best`` (weights ``out.w``) — its
-    last step's too unless it has sightings (a measurement step's estimate comes after the update). ``normals``
+    ``L``, recording the estimates of its steps in ``pose_mean``, ``pose_best`` (weights ``w``) of
+    ``out = (w (M,), pose_mean (N, 3), pose_best (N, 3))`` — its last step's too unless it has sightings (a
+    measurement step's estimate comes after the update). (Three arrays, not the run's record: the runs with and
+    without known correspondences, whose records differ, then share one compiled form.) ``normals``
     from :func:`segment_normals`; ``x_start`` (M, 3): FastSLAM 2.0 keeps there the poses the segment starts from
     (None for FastSLAM 1.0). Returns whether the last step has sightings. The segment loop of both runs, with
     known correspondences (:func:`run_segments`) and without
@@ -487,8 +489,9 @@ def move_through_segment(poses, L, s, segment, rng, out, normals, x_start):
             copy_row(poses, i, x_start[i])
     eps = normals[:last - first + 1]
     standard_normals(rng, eps)
-    propagate_segment_kernel(poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, out.w,
-                             out.pose_mean[first:first + n_record], out.pose_best[first:first + n_record])
+    w, pose_mean, pose_best = out
+    propagate_segment_kernel(poses, L.u[first:last + 1], L.dt[first:last + 1], s.noise, eps, w,
+                             pose_mean[first:first + n_record], pose_best[first:first + n_record])
     return measured
 
 
@@ -506,7 +509,8 @@ def run_segments(P, L, s, segments, rng, out, x_start):
     normals = segment_normals(segments, s.n_draws, P.poses.shape[0])
     for r in range(segments.shape[0]):
         first, last = segments[r, 0], segments[r, 1]
-        if not move_through_segment(P.poses, L, s, segments[r], rng, out, normals, x_start):
+        if not move_through_segment(P.poses, L, s, segments[r], rng, (out.w, out.pose_mean, out.pose_best), normals,
+                                    x_start):
             continue
         if x_start is None:  # (numba prunes a test on an argument only when it stands alone)
             measure_instant(P, L, s, last, rng, out, None)

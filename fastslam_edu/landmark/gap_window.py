@@ -66,7 +66,7 @@ class GapWindow(NamedTuple):
     at each; frames (W, 4) int: the sightings ``a:b`` of each in the stream, its instant number ``q`` and its step;
     count (1,) int: the frames held; clock (2,): :data:`LAST_SEEN`, :data:`OPENED`; gap (1,): the gap [s] before the
     window. The rest is the decision's scratch for S sightings of N landmarks: ll (S, N), info (S, N,
-    ``N_PAIR_SLOTS``), p0 (S,), slot, choice, group (S,) int, used (N,) int, total (``N_PAIR_SLOTS``,),
+    ``N_PAIR_SLOTS``), p0 (S,), slot, choice, group (S,) int, partial (S + 1, ``N_PAIR_SLOTS``), optimistic (S + 1,),
     prior (3, 3), trial (3,), zero (3, 3) zeros. moves (C, 5): each decision's time [s] (the window's first frame),
     particle and rigid motion :math:`\\delta` (dx, dy [m], dtheta [rad]; zeros: not moved), in its first
     ``n_moves[0]`` rows."""
@@ -83,8 +83,8 @@ class GapWindow(NamedTuple):
     slot: np.ndarray
     choice: np.ndarray
     group: np.ndarray
-    used: np.ndarray
-    total: np.ndarray
+    partial: np.ndarray
+    optimistic: np.ndarray
     prior: np.ndarray
     trial: np.ndarray
     zero: np.ndarray
@@ -102,8 +102,8 @@ def gap_window(n_particles: int, max_landmarks: int, max_sightings: int, most_in
                      count=np.zeros(1, dtype=np.int64), clock=np.array([-math.inf, math.nan]), gap=np.zeros(1),
                      ll=np.full((S, N), -math.inf), info=np.zeros((S, N, N_PAIR_SLOTS)), p0=np.zeros(S),
                      slot=np.full(S, -1, dtype=np.int64), choice=np.full(S, -1, dtype=np.int64),
-                     group=np.zeros(S, dtype=np.int64), used=np.full(N, -1, dtype=np.int64),
-                     total=np.zeros(N_PAIR_SLOTS), prior=np.zeros((3, 3)), trial=np.zeros(3),
+                     group=np.zeros(S, dtype=np.int64), partial=np.zeros((S + 1, N_PAIR_SLOTS)),
+                     optimistic=np.zeros(S + 1), prior=np.zeros((3, 3)), trial=np.zeros(3),
                      zero=np.zeros((3, 3)), moves=np.zeros((200 * M, 5)), n_moves=np.zeros(1, dtype=np.int64))
 
 
@@ -250,7 +250,7 @@ def window_correction(P, m, L, win, slot, rules):
     s0, prior, trial = win.frames[0, 0], win.prior, win.trial
     e0 = e1 = e2 = 0.0
     for _ in range(CORRECTION_STEPS):
-        total = win.total
+        total = win.partial[0]  # (the decision's scratch: its first row)
         total[:] = 0.0
         for w in range(win.count[0]):
             moved_pose(win, m, w, e0, e1, e2, trial)
@@ -328,7 +328,7 @@ def decide_window(P, m, L, rules, win, work, out):
     if K > 0 and window_candidates(P, m, L, win, rules) <= JOINT_MAX_HYPOTHESES:
         window_information(P, m, L, win, rules)
         best_joint_hypothesis(win.info[:S, :K], win.ll[:S, :K], win.p0[:S], win.prior, win.slot[:S],
-                              (win.choice[:S], win.used[:K], win.total, win.group[:S]))
+                              (win.choice[:S], win.partial[:S + 1], win.group[:S], win.optimistic[:S + 1]))
         if confirmed_landmarks_taken(P, m, win.slot[:S], rules) >= MIN_LANDMARKS_TO_MOVE:
             drift_covariance(win.prior, rules.drift_cap_s, rules, win.prior)  # P_g, all of it
             e0, e1, e2 = window_correction(P, m, L, win, win.slot[:S], rules)

@@ -1,7 +1,9 @@
 """Joint compatibility: the sightings of one instant decided together (Neira and Tardós 2001).
 
-Every hypothesis (each sighting a landmark or new, no landmark twice) is scored by the joint Gaussian of its
-innovations, correlated by the pose error the sightings share. See :mod:`fastslam_edu.landmark.association`.
+A hypothesis (each sighting a landmark or new, no landmark twice) is scored by the joint Gaussian of its
+innovations, correlated by the pose error the sightings share; the most likely one is found by branch and bound, as
+in the paper (:func:`best_joint_hypothesis`), without scoring them all. See
+:mod:`fastslam_edu.landmark.association`.
 """
 
 from __future__ import annotations
@@ -64,7 +66,7 @@ def joint_slots(P, m, pose, cloud, instant, rules, work):
         p0[i] = new_landmark_loglik(instant[1][i], rules.new_chi2)
     drift_covariance(cloud, unseen, rules, work.common)
     best_joint_hypothesis(work.info[:n, :K], ll, p0, work.common, work.slot[:n],
-                          (work.choice[:n], work.used[:K], work.total, work.group[:n]))
+                          (work.choice[:n], work.partial[:n + 1], work.group[:n], work.optimistic[:n + 1]))
     return True
 
 
@@ -92,7 +94,8 @@ def pair_information(P, m, pose, instant, unseen, rules, work):
             own_xy, own_theta = drift_variances(t - P.last_t[m, k], rules)
             excess[0, 0] = excess[1, 1] = own_xy - common_xy
             excess[2, 2] = own_theta - common_theta
-            nu0, nu1, d00, d01, d11 = innovation_with_pose(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], excess, rules)
+            nu0, nu1, d00, d01, d11 = innovation_with_pose(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], excess, rules,
+                                                           0.0, 0.0)  # (given: one compiled form for every caller)
             j0, j1, j2, k0, k1, k2 = pose_jacobian(pose, P.mu[m, k, 0], P.mu[m, k, 1])
             write_pair_row((nu0, nu1), (d00, d01, d11), (j0, j1, j2), (k0, k1, k2), info[i, k])
 
@@ -118,53 +121,145 @@ def write_pair_row(nu, D, hr, hb, row):
 
 @njit(cache=True, _nrt=False)
 def best_joint_hypothesis(info, ll, p0, Pc, slot, scratch):
-    """Every joint hypothesis, scored (:func:`joint_slots`); the best is written into ``slot`` (n,) (-1: new).
+    """The most likely joint hypothesis (:func:`joint_slots`), written into ``slot`` (n,) (-1: new).
 
-    The hypotheses are counted like an odometer: sighting 0's choice turns fastest, through its candidates
-    (``ll[i, k] > -inf``) and "new" (-1); a hypothesis that gives one landmark two sightings of one camera frame is
-    skipped. ``info`` from :func:`pair_information`, ``p0`` (n,) :math:`\\log p_0`, ``Pc`` (3, 3) the common pose
-    covariance; ``scratch = (choice (n,) int, used (N,) int, total (N_PAIR_SLOTS,), group (n,) int)``: the arrays
-    it counts in, and the camera frame of each sighting (all 0 for one instant; the frames of
-    :mod:`~fastslam_edu.landmark.gap_window` come one after the other)."""
+    The hypotheses are the leaves of a tree searched depth first: depth :math:`i` chooses sighting :math:`i`'s
+    landmark, "new" (-1) first, then its candidates (``ll[i, k] > -inf``) in increasing order. A candidate that a
+    sighting of the same camera frame above it already took is not a branch, so a hypothesis that gives one landmark
+    two sightings of a frame is never built. Each depth keeps the running sum of the rows of
+    :func:`pair_information` chosen above it (made in the sightings' order, as the score of the whole hypothesis
+    would make them).
+
+    **Branch and bound.** Below a node with sightings :math:`0..i` decided, no leaf scores more than the node's own
+    score (:func:`hypothesis_loglik` of the sightings decided) plus, for each sighting still to decide, the larger
+    of :math:`\\log p_0` and its best pair's :math:`-\\log 2\\pi - \\tfrac12\\log\\det D_{ik}`
+    (:func:`optimistic_rest`). Adding sightings can only raise :math:`\\nu^\\top S^{-1}\\nu` (a quadratic form
+    over more variables), and the covariance of the rest given the decided ones is their :math:`D` plus a positive
+    semi-definite term, so its log-determinant is at least their :math:`\\sum\\log\\det D`. A subtree whose
+    bound is below the best leaf found so far (the greedy one first, :func:`greedy_hypothesis`) is not searched:
+    the result is the exhaustive search's.
+
+    ``info`` from :func:`pair_information`, ``p0`` (n,) :math:`\\log p_0`, ``Pc`` (3, 3) the common pose
+    covariance; ``scratch = (choice (n,) int, partial (n + 1, N_PAIR_SLOTS), group (n,) int, optimistic (n + 1,))``:
+    the choice at each depth, the running sums, the camera frame of each sighting (all 0 for one instant; the frames
+    of :mod:`~fastslam_edu.landmark.gap_window` come one after the other, so a frame's sightings are consecutive),
+    and the bounds of the sightings still to decide. Returns the number of leaves scored."""
     n, K = ll.shape
-    choice, used, total, group = scratch
-    choice[:] = -1
-    best = -math.inf
-    while True:
-        # (np.int64(0), not 0: a literal 0 would make numba compile joint_loglik a second time, for the constant)
-        ok, score, n_assigned = True, 0.0, np.int64(0)
-        used[:] = -1  # the frame that last took each landmark
-        total[:] = 0.0
-        for i in range(n):
-            k = choice[i]
-            if k < 0:
-                score += p0[i]
-            elif used[k] == group[i]:
-                ok = False
-                break
-            else:
-                used[k] = group[i]
-                for c in range(total.shape[0]):  # (number by number: see copy_row)
-                    total[c] += info[i, k, c]
-                n_assigned += 1
-        if ok:
-            score += joint_loglik(total, n_assigned, Pc)
+    choice, partial, group, optimistic = scratch
+    optimistic_rest(info, ll, p0, optimistic)
+    for c in range(N_PAIR_SLOTS):
+        partial[0, c] = 0.0
+    best = greedy_hypothesis(info, ll, p0, Pc, slot, scratch)
+    leaves, i = 1, np.int64(0)  # (not 0: a literal would compile next_branch and what it calls a second time)
+    choice[0] = -2  # (before "new": the next branch of depth i is choice[i] + 1 onwards)
+    while i >= 0:
+        k = next_branch(ll, choice, group, i)
+        if k == K:  # depth i has no branch left: back up
+            i -= 1
+            continue
+        choice[i] = k
+        add_pair_row(info, partial, i, k)
+        score = hypothesis_loglik(partial[i + 1], choice[:i + 1], p0, Pc)
+        if i + 1 == n:  # a leaf
+            leaves += 1
             if score > best:
                 best = score
                 for c in range(n):
                     slot[c] = choice[c]
-        i = 0  # the next hypothesis: turn the odometer
-        while i < n:
-            k = choice[i] + 1
-            while k < K and ll[i, k] == -math.inf:
-                k += 1
-            if k < K:
-                choice[i] = k
-                break
-            choice[i] = -1
+        elif score + optimistic[i + 1] > best - BOUND_SLACK:  # (the slack: rounding never prunes a better leaf)
             i += 1
-        if i == n:
-            return
+            choice[i] = -2
+    return leaves
+
+
+#: How far below the best leaf a subtree's bound may fall and still be searched (:func:`best_joint_hypothesis`):
+#: far above the rounding of a bound, far below any difference of log-likelihood that decides anything.
+BOUND_SLACK = 1e-9
+
+
+@njit(cache=True, _nrt=False)
+def add_pair_row(info, partial, i, k):
+    """``partial[i + 1] = partial[i]`` plus pair ``(i, k)``'s row of ``info`` (nothing for k = -1, new), number
+    by number (see copy_row)."""
+    if k < 0:
+        for c in range(N_PAIR_SLOTS):
+            partial[i + 1, c] = partial[i, c]
+    else:
+        for c in range(N_PAIR_SLOTS):
+            partial[i + 1, c] = partial[i, c] + info[i, k, c]
+
+
+@njit(cache=True, _nrt=False)
+def optimistic_rest(info, ll, p0, optimistic):
+    """``optimistic[i]`` (n + 1,): the most that sightings ``i..n-1`` can add to a hypothesis's score
+    (:func:`best_joint_hypothesis`), each the larger of :math:`\\log p_0` and its best candidate's
+    :math:`-\\log 2\\pi - \\tfrac12\\log\\det D_{ik}`; ``optimistic[n] = 0``."""
+    n, K = ll.shape
+    optimistic[n] = 0.0
+    for i in range(n - 1, -1, -1):
+        most = p0[i]
+        for k in range(K):
+            if ll[i, k] > -math.inf:
+                most = max(most, -LOG_2PI - 0.5 * info[i, k, PAIR_LOG_DET])
+        optimistic[i] = optimistic[i + 1] + most
+
+
+@njit(cache=True, _nrt=False)
+def greedy_hypothesis(info, ll, p0, Pc, slot, scratch):
+    """A first leaf for :func:`best_joint_hypothesis` to beat: each sighting in turn takes its most likely
+    candidate alone (``ll``) that its frame has not taken, or is new when :math:`\\log p_0` is larger. Written
+    into ``slot``; returns its score (:func:`hypothesis_loglik`)."""
+    n, K = ll.shape
+    choice, partial, group, _ = scratch
+    for i in range(n):
+        choice[i], most = -1, p0[i]
+        for k in range(K):
+            if ll[i, k] > most and not taken_in_frame(choice, group, i, k):
+                choice[i], most = k, ll[i, k]
+        add_pair_row(info, partial, i, choice[i])
+        slot[i] = choice[i]
+    return hypothesis_loglik(partial[n], choice, p0, Pc)
+
+
+@njit(cache=True, _nrt=False)
+def next_branch(ll, choice, group, i):
+    """The next choice of sighting ``i`` after ``choice[i]`` (-2: none yet): "new" (-1), then its candidates
+    (``ll[i, k] > -inf``) that no sighting before it in the same frame (``group``) has taken; K when none is
+    left (:func:`best_joint_hypothesis`)."""
+    K = ll.shape[1]
+    k = choice[i] + 1
+    if k < 0:
+        return np.int64(-1)
+    while k < K:
+        if ll[i, k] > -math.inf and not taken_in_frame(choice, group, i, k):
+            return k
+        k += 1
+    return np.int64(K)
+
+
+@njit(cache=True, _nrt=False)
+def taken_in_frame(choice, group, i, k):
+    """Whether a sighting before ``i`` of the same camera frame (``group``; a frame's sightings are consecutive)
+    chose landmark ``k``."""
+    j = i - 1
+    while j >= 0 and group[j] == group[i]:
+        if choice[j] == k:
+            return True
+        j -= 1
+    return False
+
+
+@njit(cache=True, _nrt=False)
+def hypothesis_loglik(total, choice, p0, Pc):
+    """The score of one joint hypothesis ``choice`` (n,) (-1: new): :math:`\\sum_{\\text{new}} \\log p_0` (``p0``
+    (n,)) plus :func:`joint_loglik` of ``total``, the sum of its assigned pairs' rows."""
+    score, n_assigned = 0.0, np.int64(0)
+    for i in range(choice.shape[0]):
+        if choice[i] < 0:
+            score += p0[i]
+        else:
+            n_assigned += 1
+    return score + joint_loglik(total, n_assigned, Pc)
 
 
 @njit(cache=True, _nrt=False)
@@ -224,4 +319,5 @@ def det3_of(r0, r1, r2):
 
 
 __all__ = ["JOINT_MAX_HYPOTHESES", "PAIR_QUAD", "PAIR_B", "PAIR_G", "PAIR_LOG_DET", "N_PAIR_SLOTS", "joint_slots",
-           "pair_information", "write_pair_row", "best_joint_hypothesis", "joint_loglik", "solve_with_prior", "det3_of"]
+           "pair_information", "write_pair_row", "best_joint_hypothesis", "BOUND_SLACK", "add_pair_row",
+           "optimistic_rest", "greedy_hypothesis", "next_branch", "taken_in_frame", "hypothesis_loglik", "joint_loglik", "solve_with_prior", "det3_of"]
