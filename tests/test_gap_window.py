@@ -172,8 +172,8 @@ def test_a_landmark_takes_sightings_of_two_frames_but_not_two_of_one():
     for group, expected in (([0, 1], [0, 0]), ([0, 0], None)):
         slot = np.full(2, -2, dtype=np.int64)
         best_joint_hypothesis(info, ll, p0, np.eye(3) * 1e-3, slot,
-                              (np.full(2, -1, dtype=np.int64), np.zeros((3, N_PAIR_SLOTS)), np.array(group, dtype=np.int64),
-                               np.zeros(3)))
+                              (np.full(2, -1, dtype=np.int64), np.zeros((3, N_PAIR_SLOTS)),
+                               np.array(group, dtype=np.int64), np.zeros(3)))
         if expected is not None:
             assert slot.tolist() == expected
         else:

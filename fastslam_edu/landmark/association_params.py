@@ -253,8 +253,8 @@ class AssociationWorkspace(NamedTuple):
     the slot each sighting goes to (-1: new); chosen (n,): the log-likelihood it was decided by; taken (N,): the
     landmarks a sighting of the instant went to; split (n,): the sightings whose landmark splits
     (:func:`~fastslam_edu.landmark.association.splitting_sightings`); info (n, N, ``N_PAIR_SLOTS``), p0 (n,),
-    choice (n,), partial (n + 1, ``N_PAIR_SLOTS``), optimistic (n + 1,), excess and common (3, 3), group (n,): joint compatibility's
-    (:mod:`fastslam_edu.landmark.joint_compatibility`).
+    choice (n,), partial (n + 1, ``N_PAIR_SLOTS``), optimistic (n + 1,), excess and common (3, 3), group (n,):
+    joint compatibility's (:mod:`fastslam_edu.landmark.joint_compatibility`).
     """
 
     ll: np.ndarray

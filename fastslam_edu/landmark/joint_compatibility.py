@@ -320,4 +320,5 @@ def det3_of(r0, r1, r2):
 
 __all__ = ["JOINT_MAX_HYPOTHESES", "PAIR_QUAD", "PAIR_B", "PAIR_G", "PAIR_LOG_DET", "N_PAIR_SLOTS", "joint_slots",
            "pair_information", "write_pair_row", "best_joint_hypothesis", "BOUND_SLACK", "add_pair_row",
-           "optimistic_rest", "greedy_hypothesis", "next_branch", "taken_in_frame", "hypothesis_loglik", "joint_loglik", "solve_with_prior", "det3_of"]
+           "optimistic_rest", "greedy_hypothesis", "next_branch", "taken_in_frame", "hypothesis_loglik",
+           "joint_loglik", "solve_with_prior", "det3_of"]
