@@ -49,7 +49,7 @@ def test_joblib_on_two_processes_gives_the_serial_numbers(serial):
 
 
 def test_a_local_dask_cluster_gives_the_serial_numbers(serial):
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         assert run_sweep(short_run, JOBS, scheduler=cluster.scheduler_address) == serial
 
 
