@@ -255,6 +255,15 @@ class OnlineCeiling(Hook):
         self.right = 0.0
         self.scored = 0
         self.first_sightings = 0
+        self._work = None
+
+    def workspace(self, n: int, N: int):
+        """The :func:`~fastslam_edu.landmark.association_params.association_workspace` the probe decides in, made
+        again only when an instant has more sightings (``n``) or the set other landmarks (``N``) than it holds."""
+        work = self._work
+        if work is None or work.slot.shape[0] < n or work.ll.shape[1] != N:
+            self._work = work = association_workspace(n, N)
+        return work
 
     @property
     def accuracy(self) -> float:
@@ -281,7 +290,7 @@ class OnlineCeiling(Hook):
         w = np.asarray(run.w, dtype=float)
         right = particles_right(P, np.ascontiguousarray(stream.z[a:b], dtype=float),
                                 np.ascontiguousarray(run.R[a:b]), float(stream.t[e]), truth, w / w.sum(), self.rules,
-                                association_workspace(b - a, N))
+                                self.workspace(b - a, N))
         self.right += float(right[mapped].sum())
         self.scored += int(mapped.sum())
 

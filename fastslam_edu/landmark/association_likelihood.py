@@ -34,7 +34,7 @@ def pose_jacobian(pose, mx, my):
 
 
 @njit(cache=True, _nrt=False)
-def pose_term(pose, mx, my, cloud, v_xy=0.0, v_theta=0.0):
+def pose_term(pose, mx, my, cloud, v_xy, v_theta):
     """:math:`H_x P H_x^\\top` (``a, b, d``: entries 00, 01, 11) for a landmark at ``(mx, my)``: the pose
     covariance :math:`P` = ``cloud`` (3, 3) of the particle set plus the drift
     :math:`\\mathrm{diag}(v_{xy}, v_{xy}, v_\\theta)` (:func:`drift_variances`; :func:`drift_covariance` as numbers,
@@ -74,7 +74,7 @@ def drift_covariance(cloud, unseen_s, rules, out):
 
 
 @njit(cache=True, _nrt=False)
-def innovation_with_pose(pose, z, R, mu, sigma, P, rules, v_xy=0.0, v_theta=0.0):
+def innovation_with_pose(pose, z, R, mu, sigma, P, rules, v_xy, v_theta):
     """The innovation of one sighting and landmark with the pose covariance ``P`` (3, 3) added (and the drift
     ``v_xy``, ``v_theta`` of :func:`pose_term`): ``(nu0, nu1, q00, q01, q11)``, :math:`\\nu` and
     :math:`Q + H_x P H_x^\\top` (its range variance scaled by ``rules.range_scale`` squared)."""

@@ -95,7 +95,7 @@ def pair_information(P, m, pose, instant, unseen, rules, work):
             excess[0, 0] = excess[1, 1] = own_xy - common_xy
             excess[2, 2] = own_theta - common_theta
             nu0, nu1, d00, d01, d11 = innovation_with_pose(pose, z[i], R[i], P.mu[m, k], P.sigma[m, k], excess, rules,
-                                                           0.0, 0.0)  # (given: one compiled form for every caller)
+                                                           0.0, 0.0)  # (the drift is in excess)
             j0, j1, j2, k0, k1, k2 = pose_jacobian(pose, P.mu[m, k, 0], P.mu[m, k, 1])
             write_pair_row((nu0, nu1), (d00, d01, d11), (j0, j1, j2), (k0, k1, k2), info[i, k])
 
