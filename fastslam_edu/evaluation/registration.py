@@ -139,7 +139,7 @@ def best_motion(A, B, partners, pairs, windows, grid, radius):
     pairs as far apart within ``2 radius``); each proposal is scored by :func:`count_inliers` on ``grid``
     (:func:`point_grid`). ``(count, φ, τx, τy)`` of the best."""
     _, b_first, b_second = pairs
-    best_count, best_cost = 0, math.inf
+    best_count, best_cost = np.int64(0), math.inf  # (not 0: a literal would make numba compile count_inliers twice)
     best_phi = best_tx = best_ty = 0.0
     for i1 in range(A.shape[0]):
         for q in range(partners.shape[1]):
