@@ -193,8 +193,10 @@ def print_smoother_table(table: list[dict], seeds: int) -> None:
               f"{row['landmarks_spurious']:>8.1f}{mark['landmarks_spurious']} "
               f"{row['landmark_error_aligned_mean_m']:>11.3f}{mark['landmark_error_aligned_mean_m']} "
               f"{row['path_rmse_aligned_m']:>9.3f} {row['seconds']:>7.1f}{mark['seconds']}")
-    print("* misses the smoother's target (ratio to the oracle >= 0.95, spurious <= 1, aligned landmark error "
-          "<= 0.15 m, <= 30 s per robot)")
+    t = SMOOTHER_TARGETS
+    print(f"* misses the smoother's target (ratio to the oracle >= {t['ratio_to_oracle']}, spurious <= "
+          f"{t['landmarks_spurious']}, aligned landmark error <= {t['landmark_error_aligned_mean_m']} m, <= "
+          f"{t['seconds']:g} s per robot)")
     if table and "cost_true" in table[0]:
         print("References from the true correspondences (evaluation.smoother_bounds), medians: J/J* the smoother's "
               "penalised cost over the true correspondences'; path: the path solved with them, aligned RMSE; "
@@ -282,8 +284,9 @@ def main(argv=None) -> int:
               f"{row['landmark_error_aligned_mean_m']:>11.2f}{mark['landmark_error_aligned_mean_m']} "
               f"{row['filter_seconds']:>8.1f} {row['known_seconds']:>6.1f} "
               f"{row['time_to_barcodes']:>10.1f}{mark['time_to_barcodes']}")
-    print("* misses the target (ratio to the oracle >= 0.60, spurious <= 2, aligned landmark error <= 0.30 m, "
-          "x barcodes <= 3); "
+    print(f"* misses the target (ratio to the oracle >= {TARGETS['ratio_to_oracle']}, spurious <= "
+          f"{TARGETS['landmarks_spurious']}, aligned landmark error <= {TARGETS['landmark_error_aligned_mean_m']} m, "
+          f"x barcodes <= {TARGETS['time_to_barcodes']:g}); "
           "ceiling: own path and own map with known correspondences; online: the filter's rule decided by the "
           "particles of that run before each update (both with their ratio to the oracle in brackets); "
           "lost: landmark sightings given to identities the final map no longer holds; seconds, known: filter "
